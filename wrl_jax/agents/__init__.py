@@ -1,0 +1,1 @@
+"""Hand-written RL algorithms (PPO, DQN) and the contract the training driver uses."""

@@ -1,0 +1,143 @@
+"""The contract between an RL algorithm and the shared training driver.
+
+An :class:`Algorithm` describes *one seed* of training as two pure functions,
+``init`` and ``update``. The driver (``wrl_jax.training``) ``vmap``s them over
+seeds (and sweep points), ``lax.scan``s ``update`` over a chunk of updates in
+one compiled program, and between chunks reports progress, writes metrics and
+checkpoints. Because all of an algorithm's mutable state is one pytree (its
+runner state), a checkpoint is that pytree, and resuming is exact.
+
+Hyperparameters that a sweep may vary (learning rate, entropy coefficient,
+epsilon schedule, the environment's reward constants...) are *traced*: they
+live in the runner state (``runner.hyper`` and ``runner.env_params``), never as
+Python constants inside ``update``. Only what fixes array shapes (network
+width, number of environments, rollout length) is static, on the config.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import Any, ClassVar, Generic, TypeVar
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from wrl_jax.env import Warehouse
+from wrl_jax.types import EnvParams
+
+RunnerT = TypeVar("RunnerT")
+Metrics = dict[str, jax.Array]
+
+
+class Algorithm(abc.ABC, Generic[RunnerT]):
+    """One seed of an RL algorithm, as pure functions the driver composes.
+
+    Subclasses set ``name`` and take ``(config, env, env_params)``.
+    """
+
+    name: ClassVar[str]
+
+    def __init__(self, config: Any, env: Warehouse, env_params: EnvParams):
+        self.config = config
+        self.env = env
+        self.env_params = env_params
+
+    @property
+    @abc.abstractmethod
+    def num_updates(self) -> int:
+        """Updates in a full training run (``total_timesteps // steps_per_update``)."""
+
+    @property
+    @abc.abstractmethod
+    def steps_per_update(self) -> int:
+        """Environment transitions one update collects, for one seed."""
+
+    @abc.abstractmethod
+    def init(self, key: jax.Array, hyper: Any | None = None, env_params: EnvParams | None = None) -> RunnerT:
+        """The runner state of one seed before training.
+
+        ``hyper`` (the algorithm's traced hyperparameters) and ``env_params``
+        default to the config's and the constructor's; a sweep passes batched
+        ones under ``vmap``.
+        """
+
+    @abc.abstractmethod
+    def update(self, runner: RunnerT, update_index: jax.Array) -> tuple[RunnerT, Metrics]:
+        """One update of one seed: collect ``steps_per_update`` transitions and learn.
+
+        ``update_index`` is the same for every seed (the driver does not batch
+        it), so schedules keyed on it stay cheap under ``vmap``. Metrics are
+        float32 scalars; episode counts come as sums (see :class:`EpisodeSums`)
+        so chunks aggregate exactly.
+        """
+
+    @abc.abstractmethod
+    def network_params(self, runner: RunnerT) -> Any:
+        """The parameters the greedy policy needs (what evaluation loads)."""
+
+    @abc.abstractmethod
+    def greedy_action(self, network_params: Any, obs: jax.Array) -> jax.Array:
+        """The deterministic action for one observation (argmax Q, or the policy's mode)."""
+
+
+@struct.dataclass
+class EpisodeStats:
+    """Running return and length of each environment's current episode."""
+
+    episode_return: jax.Array  # (num_envs,) float32
+    episode_length: jax.Array  # (num_envs,) int32
+
+    @classmethod
+    def zeros(cls, num_envs: int) -> "EpisodeStats":
+        return cls(jnp.zeros((num_envs,), jnp.float32), jnp.zeros((num_envs,), jnp.int32))
+
+
+@struct.dataclass
+class EpisodeSums:
+    """Sums over the episodes that ended within some transitions.
+
+    ``mean return = return_sum / episodes``; ``delivery rate = delivered / episodes``.
+    """
+
+    episodes: jax.Array
+    delivered: jax.Array
+    return_sum: jax.Array
+    length_sum: jax.Array
+
+    def as_metrics(self) -> Metrics:
+        return {
+            "episodes": self.episodes,
+            "delivered": self.delivered,
+            "return_sum": self.return_sum,
+            "length_sum": self.length_sum,
+        }
+
+
+def track_episodes(
+    stats: EpisodeStats, reward: jax.Array, terminated: jax.Array, truncated: jax.Array
+) -> tuple[EpisodeStats, EpisodeSums]:
+    """Advance the running episode statistics by one batched transition.
+
+    Returns the new running stats (zeroed where an episode ended) and the sums
+    over the episodes that ended on this transition.
+    """
+    episode_return = stats.episode_return + reward
+    episode_length = stats.episode_length + 1
+    done = terminated | truncated
+    sums = EpisodeSums(
+        episodes=done.sum().astype(jnp.float32),
+        delivered=terminated.sum().astype(jnp.float32),
+        return_sum=jnp.where(done, episode_return, 0.0).sum(),
+        length_sum=jnp.where(done, episode_length, 0).sum().astype(jnp.float32),
+    )
+    new_stats = EpisodeStats(
+        episode_return=jnp.where(done, 0.0, episode_return),
+        episode_length=jnp.where(done, 0, episode_length),
+    )
+    return new_stats, sums
+
+
+def sum_episode_sums(sums: EpisodeSums) -> EpisodeSums:
+    """Collapse a leading (time) axis of stacked :class:`EpisodeSums`."""
+    return jax.tree.map(lambda x: x.sum(axis=0), sums)

@@ -1,0 +1,240 @@
+"""The warehouse pick-and-place environment in JAX (SPEC.md).
+
+Functional and explicit, in the gymnax style: the environment object holds
+only static shapes; state and params are pytrees passed in and out, so every
+method is pure and can be ``jit``-ed, ``vmap``-ped over thousands of
+environments and ``lax.scan``-ned over time.
+
+``step`` auto-resets: when a transition ends the episode (``terminated`` or
+``truncated``) it returns the first observation of a fresh episode, and keeps
+the observation the transition actually reached in ``info["final_obs"]``, so a
+learner can bootstrap a truncated episode from the right state. ``step_env``
+is the same transition without the reset.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from wrl_jax.layout import MOVES, Layout
+from wrl_jax.types import REWARD_DEFAULTS, EnvParams, EnvState
+
+NUM_ACTIONS = 4
+ACTION_NAMES = ("up", "down", "left", "right")
+
+StepResult = tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, jax.Array]]
+
+
+class Warehouse:
+    """The pick-and-place MDP for one grid size.
+
+    Args:
+        size: grid side ``N`` (static: it fixes array shapes).
+        max_items: item capacity ``K_max`` of the params' ``items`` array.
+        observe_carrying: include the carrying flag as observation index 6.
+            ``False`` gives the 6-value observation of the study's
+            "task-stage ignorance" failure mode; keep it ``True`` otherwise.
+    """
+
+    num_actions = NUM_ACTIONS
+
+    def __init__(self, size: int, max_items: int, observe_carrying: bool = True):
+        if size < 2:
+            raise ValueError(f"grid size must be at least 2, got {size}")
+        if max_items < 1:
+            raise ValueError(f"max_items must be at least 1, got {max_items}")
+        self.size = int(size)
+        self.max_items = int(max_items)
+        self.observe_carrying = bool(observe_carrying)
+        # Entry i + 1 is float32(i) / float32(N - 1) for i in -1..N-1, rounded once, as SPEC.md says.
+        self._coordinate_table = np.arange(-1, self.size, dtype=np.float32) / np.float32(self.size - 1)
+
+    @property
+    def obs_size(self) -> int:
+        return 7 if self.observe_carrying else 6
+
+    def __repr__(self) -> str:
+        return (
+            f"Warehouse(size={self.size}, max_items={self.max_items}, "
+            f"observe_carrying={self.observe_carrying})"
+        )
+
+    # Static identity, so that jit caches keyed on the env object are shared
+    # between equal environments.
+    def _key(self) -> tuple:
+        return (self.size, self.max_items, self.observe_carrying)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Warehouse) and self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash(self._key())
+
+    # ------------------------------------------------------------------ reset
+    def reset(self, key: jax.Array, params: EnvParams) -> tuple[jax.Array, EnvState]:
+        """Start an episode with the item drawn uniformly from the layout's items."""
+        item_index = jax.random.randint(key, (), 0, params.num_items, dtype=jnp.int32)
+        return self.reset_to_item(item_index, params)
+
+    def reset_to_item(self, item_index: jax.Array | int, params: EnvParams) -> tuple[jax.Array, EnvState]:
+        """Start an episode with a chosen item (deterministic evaluation)."""
+        if not isinstance(item_index, jax.core.Tracer) and not isinstance(params.num_items, jax.core.Tracer):
+            _check_item_index(item_index, params)
+        item_index = jnp.asarray(item_index, dtype=jnp.int32)
+        state = EnvState(
+            pos=params.start,
+            item_index=item_index,
+            item_pos=params.items[item_index],
+            carrying=jnp.zeros((), dtype=bool),
+            time=jnp.zeros((), dtype=jnp.int32),
+        )
+        return self.observe(state, params), state
+
+    # ------------------------------------------------------------------- step
+    def step(self, key: jax.Array, state: EnvState, action: jax.Array | int, params: EnvParams) -> StepResult:
+        """One transition, then an automatic reset if the episode ended.
+
+        Returns ``(obs, state, reward, terminated, truncated, info)``. When the
+        episode ended, ``obs`` and ``state`` begin the next episode (its item
+        drawn from ``key``) and ``info["final_obs"]`` is the observation the
+        transition reached; otherwise ``info["final_obs"]`` equals ``obs``.
+        """
+        obs, next_state, reward, terminated, truncated, info = self.step_env(state, action, params)
+        reset_obs, reset_state = self.reset(key, params)
+        done = terminated | truncated
+        next_state = jax.tree.map(lambda fresh, cont: jnp.where(done, fresh, cont), reset_state, next_state)
+        info = {**info, "final_obs": obs}
+        return jnp.where(done, reset_obs, obs), next_state, reward, terminated, truncated, info
+
+    def step_env(self, state: EnvState, action: jax.Array | int, params: EnvParams) -> StepResult:
+        """One transition of SPEC.md, without a reset (for tests and analysis).
+
+        ``info`` holds bool flags of this transition: ``collision`` (a move
+        into a shelf), ``wall_bump`` (a move off the grid), ``picked_up`` and
+        ``delivered``.
+        """
+        if not isinstance(action, jax.core.Tracer):
+            check_action(action)
+        action = jnp.asarray(action, dtype=jnp.int32)
+        pos = state.pos
+        proposed = pos + jnp.asarray(MOVES)[action]
+        on_grid = jnp.all((proposed >= 0) & (proposed < self.size))
+        wall_bump = ~on_grid
+        # Off the grid, the clipped cell is the robot's own cell (one coordinate moved by one).
+        clipped = jnp.clip(proposed, 0, self.size - 1)
+        collision = on_grid & params.shelves[clipped[0], clipped[1]]
+        # The study's bug writes the position before the check; the fix checks first.
+        blocked = collision & ~params.collision_bug
+        next_pos = jnp.where(blocked, pos, clipped)
+
+        target = jnp.where(state.carrying, params.goal, state.item_pos)
+        distance_before = jnp.sum(jnp.abs(pos - target))
+        distance_after = jnp.sum(jnp.abs(next_pos - target))
+        picked_up = ~state.carrying & jnp.all(next_pos == state.item_pos)
+        delivered = state.carrying & jnp.all(next_pos == params.goal)
+
+        zero = jnp.float32(0.0)
+        # Float32, terms added in SPEC.md's order: the NumPy reference adds them the same way.
+        reward = jnp.where(delivered, zero, params.step_penalty)
+        reward = reward + jnp.where(collision, params.obstacle_penalty, zero)
+        reward = reward + jnp.where(wall_bump, params.wall_penalty, zero)
+        reward = reward + params.shaping_coef * (distance_before - distance_after).astype(jnp.float32)
+        reward = reward + jnp.where(picked_up, params.pickup_reward, zero)
+        reward = reward + jnp.where(delivered, params.delivery_reward, zero)
+
+        time = state.time + 1
+        terminated = delivered
+        truncated = (time >= params.max_steps) & ~terminated
+        next_state = EnvState(
+            pos=next_pos,
+            item_index=state.item_index,
+            item_pos=state.item_pos,
+            carrying=state.carrying | picked_up,
+            time=time,
+        )
+        info = {"collision": collision, "wall_bump": wall_bump, "picked_up": picked_up, "delivered": delivered}
+        return self.observe(next_state, params), next_state, reward, terminated, truncated, info
+
+    # ------------------------------------------------------------ observation
+    def observe(self, state: EnvState, params: EnvParams) -> jax.Array:
+        """The float32 observation of SPEC.md (7 values, or 6 without the carrying flag)."""
+        # Coordinates are read from an exact table of float32(i) / float32(N-1):
+        # XLA on CPU compiles float division into a reciprocal multiply, which can
+        # differ from SPEC.md's true float32 quotient in the last bit.
+        table = jnp.asarray(self._coordinate_table)
+        robot = table[state.pos + 1]
+        goal = table[params.goal + 1]
+        item = table[jnp.where(state.carrying, 0, state.item_pos + 1)]
+        parts = [robot, goal, item]
+        if self.observe_carrying:
+            parts.append(state.carrying.astype(jnp.float32)[None])
+        return jnp.concatenate(parts)
+
+
+# ---------------------------------------------------------------------- params
+def make_params(
+    layout: Layout,
+    *,
+    max_steps: int,
+    max_items: int | None = None,
+    collision_bug: bool = False,
+    **rewards: float,
+) -> EnvParams:
+    """Params of ``layout`` with SPEC.md's reward constants, any of them overridden.
+
+    Args:
+        layout: a validated layout.
+        max_steps: truncation length (positive).
+        max_items: pad ``items`` to this capacity so layouts with different
+            item counts share one compiled program; defaults to the layout's count.
+        collision_bug: the study's collision-bug switch (see :class:`EnvParams`).
+        **rewards: overrides of ``step_penalty``, ``obstacle_penalty``,
+            ``wall_penalty``, ``shaping_coef``, ``pickup_reward``, ``delivery_reward``.
+    """
+    unknown = sorted(set(rewards) - set(REWARD_DEFAULTS))
+    if unknown:
+        raise ValueError(f"unknown reward parameter(s) {unknown}; known: {sorted(REWARD_DEFAULTS)}")
+    if int(max_steps) < 1:
+        raise ValueError(f"max_steps must be a positive integer, got {max_steps}")
+    max_items = layout.num_items if max_items is None else int(max_items)
+    if max_items < layout.num_items:
+        raise ValueError(f"max_items={max_items} is smaller than the layout's {layout.num_items} items")
+    items = np.zeros((max_items, 2), dtype=np.int32)
+    items[: layout.num_items] = layout.items
+    items[layout.num_items :] = layout.items[0]  # padding: a valid cell, never drawn
+    values = {**REWARD_DEFAULTS, **rewards}
+    for name, value in values.items():
+        if not np.isfinite(float(value)):
+            raise ValueError(f"reward parameter {name} must be finite, got {value}")
+    return EnvParams(
+        shelves=jnp.asarray(layout.shelves, dtype=bool),
+        start=jnp.asarray(layout.start, dtype=jnp.int32),
+        goal=jnp.asarray(layout.goal, dtype=jnp.int32),
+        items=jnp.asarray(items),
+        num_items=jnp.asarray(layout.num_items, dtype=jnp.int32),
+        max_steps=jnp.asarray(int(max_steps), dtype=jnp.int32),
+        collision_bug=jnp.asarray(bool(collision_bug)),
+        **{name: jnp.asarray(value, dtype=jnp.float32) for name, value in values.items()},
+    )
+
+
+def check_action(action: Any) -> None:
+    """Raise a clear ``ValueError`` for an action outside ``{0, 1, 2, 3}``."""
+    array = np.asarray(action)
+    if array.dtype.kind not in "iu" and not (array.dtype.kind == "f" and np.all(array == np.round(array))):
+        raise ValueError(f"action must be an integer in 0..3 (up, down, left, right), got {action!r}")
+    if np.any((array < 0) | (array >= NUM_ACTIONS)):
+        raise ValueError(f"action {action!r} is out of range: expected 0 up, 1 down, 2 left or 3 right")
+
+
+def _check_item_index(item_index: Any, params: EnvParams) -> None:
+    array = np.asarray(item_index)
+    num_items = np.asarray(params.num_items)
+    if array.dtype.kind not in "iu":
+        raise ValueError(f"item_index must be an integer, got {item_index!r}")
+    if np.any((array < 0) | (array >= num_items)):
+        raise ValueError(f"item_index {item_index!r} is out of range: the layout has {num_items} items")
