@@ -208,8 +208,20 @@ def make_params(
     items[layout.num_items :] = layout.items[0]  # padding: a valid cell, never drawn
     values = {**REWARD_DEFAULTS, **rewards}
     for name, value in values.items():
-        if not np.isfinite(float(value)):
-            raise ValueError(f"reward parameter {name} must be finite, got {value}")
+        # Checked in float32, the type the reward is computed in. A nonzero constant
+        # below 1e-30 in magnitude could make a float32 subnormal, which XLA on CPU
+        # flushes to zero (IEEE float32, and the NumPy reference, keep it); from 1e-30
+        # (> 2**-100) up, every partial sum of the reward is a multiple of 2**-123, so
+        # no subnormal can arise and the flush never changes a result.
+        with np.errstate(over="ignore"):
+            value32 = np.float32(value)
+        if not np.isfinite(value32):
+            raise ValueError(f"reward parameter {name} must be finite in float32, got {value}")
+        if value32 != 0 and abs(value32) < 1e-30:
+            raise ValueError(
+                f"reward parameter {name}={value} is too small: use 0 or a magnitude of at least 1e-30 "
+                f"(XLA on CPU flushes float32 subnormals to zero)"
+            )
     return EnvParams(
         shelves=jnp.asarray(layout.shelves, dtype=bool),
         start=jnp.asarray(layout.start, dtype=jnp.int32),

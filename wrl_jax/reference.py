@@ -117,8 +117,7 @@ class WarehouseReferenceEnv(gym.Env):
             "delivery_reward": delivery_reward,
         }
         for name, value in given.items():
-            if not np.isfinite(float(value)):
-                raise ValueError(f"reward parameter {name} must be finite, got {value!r}")
+            _check_reward_constant(name, value)
         self.step_penalty = np.float32(step_penalty)
         self.obstacle_penalty = np.float32(obstacle_penalty)
         self.wall_penalty = np.float32(wall_penalty)
@@ -211,8 +210,9 @@ class WarehouseReferenceEnv(gym.Env):
             self.delivery_reward if delivered else zero,
         ]
         reward = terms[0]
-        for term in terms[1:]:
-            reward = np.float32(reward + term)
+        with np.errstate(over="ignore"):  # float32 overflow to +-inf is IEEE, as in XLA
+            for term in terms[1:]:
+                reward = np.float32(reward + term)
 
         self.robot_pos = new_pos
         if picked_up:
@@ -281,6 +281,30 @@ class WarehouseReferenceEnv(gym.Env):
                 f"item_index {value} is out of range: the layout has {len(self.items)} items (0..{len(self.items) - 1})"
             )
         return value
+
+
+MIN_REWARD_MAGNITUDE = 1e-30
+"""Smallest magnitude of a nonzero reward constant.
+
+A float32 subnormal behaves differently in the two implementations: IEEE
+arithmetic (NumPy, this reference) keeps it, XLA on CPU flushes it to zero. If
+every nonzero constant is at least ``1e-30 > 2**-100`` in magnitude, each is a
+multiple of ``2**-123`` and so is every partial sum of the reward, so no
+subnormal can ever arise and both implementations compute the same floats.
+"""
+
+
+def _check_reward_constant(name: str, value: Any) -> None:
+    """``ValueError`` unless ``value`` is 0 or a finite float32 of magnitude >= 1e-30."""
+    with np.errstate(over="ignore"):
+        value32 = np.float32(value)
+    if not np.isfinite(value32):
+        raise ValueError(f"reward parameter {name} must be finite in float32, got {value!r}")
+    if value32 != 0 and abs(value32) < MIN_REWARD_MAGNITUDE:
+        raise ValueError(
+            f"reward parameter {name}={value!r} is too small: use 0 or a magnitude of at least "
+            f"{MIN_REWARD_MAGNITUDE} (float32 subnormals are flushed to zero by XLA on CPU)"
+        )
 
 
 def make_reference(name: str, **overrides: Any) -> WarehouseReferenceEnv:
