@@ -214,7 +214,10 @@ def test_human_mode_needs_pygame():
         env = WarehouseGymEnv("Warehouse-8x8-v0", render_mode="human", cell_size=8)
         env.reset(seed=0)
         env.step(1)
+        shown = pygame.surfarray.array3d(pygame.display.get_surface()).swapaxes(0, 1)
+        np.testing.assert_array_equal(shown, np.asarray(jax.jit(render_frame, static_argnums=2)(env.state, env.params, 8)))
         env.close()
+        env.close()  # closing twice is allowed
 
 
 # ------------------------------------------------------------------ vector env

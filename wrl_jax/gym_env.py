@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import functools
 import importlib.util
+import os
 from typing import Any
 
 import gymnasium as gym
@@ -283,12 +284,12 @@ class WarehouseGymEnv(gym.Env):
         return None
 
     def _render_human(self) -> None:
+        os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
         import pygame  # optional extra: imported only when a window is asked for
 
         frame = np.asarray(_render_one(self.state, self.cell_size, self.params))
         if self._window is None:
-            pygame.init()
-            pygame.display.init()
+            pygame.display.init()  # the display only: no audio device needed
             pygame.display.set_caption(f"wrl_jax {self.name or 'warehouse'}")
             self._window = pygame.display.set_mode((frame.shape[1], frame.shape[0]))
             self._clock = pygame.time.Clock()
@@ -302,7 +303,6 @@ class WarehouseGymEnv(gym.Env):
             import pygame
 
             pygame.display.quit()
-            pygame.quit()
             self._window = None
             self._clock = None
 
