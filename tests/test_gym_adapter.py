@@ -6,7 +6,6 @@ import os
 
 import gymnasium as gym
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env, data_equivalence
@@ -215,7 +214,8 @@ def test_human_mode_needs_pygame():
         env.reset(seed=0)
         env.step(1)
         shown = pygame.surfarray.array3d(pygame.display.get_surface()).swapaxes(0, 1)
-        np.testing.assert_array_equal(shown, np.asarray(jax.jit(render_frame, static_argnums=2)(env.state, env.params, 8)))
+        expected = jax.jit(render_frame, static_argnums=2)(env.state, env.params, 8)
+        np.testing.assert_array_equal(shown, np.asarray(expected))
         env.close()
         env.close()  # closing twice is allowed
 

@@ -154,7 +154,9 @@ def _seed_from(rng: np.random.Generator) -> int:
 def _check_single_action(action: Any) -> int:
     array = np.asarray(action)
     if array.ndim != 0:
-        raise ValueError(f"action must be a scalar integer in 0..{NUM_ACTIONS - 1}, got an array of shape {array.shape}")
+        raise ValueError(
+            f"action must be a scalar integer in 0..{NUM_ACTIONS - 1}, got an array of shape {array.shape}"
+        )
     if array.dtype.kind not in "iu":
         raise ValueError(f"action must be an integer in 0..{NUM_ACTIONS - 1} {ACTION_NAMES}, got {action!r}")
     value = int(array)
