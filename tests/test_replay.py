@@ -1,0 +1,138 @@
+"""The JAX replay buffer: circular writes, wrap-around, uniform sampling, pytree behaviour."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from wrl_jax.agents.replay import ReplayBuffer, Transition
+
+
+def batch(start: int, n: int, obs_size: int = 3) -> Transition:
+    """``n`` transitions whose every field encodes its id ``start + i``."""
+    ids = jnp.arange(start, start + n, dtype=jnp.int32)
+    return Transition(
+        obs=jnp.repeat(ids[:, None].astype(jnp.float32), obs_size, axis=1),
+        action=ids % 4,
+        reward=ids.astype(jnp.float32) * 0.5,
+        next_obs=jnp.repeat(ids[:, None].astype(jnp.float32) + 0.25, obs_size, axis=1),
+        terminated=(ids % 3) == 0,
+    )
+
+
+def test_empty_buffer_shapes_and_dtypes():
+    buf = ReplayBuffer.empty(10, 7)
+    assert buf.capacity == 10
+    assert buf.data.obs.shape == (10, 7) and buf.data.obs.dtype == jnp.float32
+    assert buf.data.next_obs.shape == (10, 7)
+    assert buf.data.action.dtype == jnp.int32 and buf.data.terminated.dtype == jnp.bool_
+    assert int(buf.size) == 0 and int(buf.position) == 0
+
+
+@pytest.mark.parametrize("capacity, obs_size", [(0, 7), (5, 0), (-3, 2)])
+def test_empty_rejects_bad_sizes(capacity, obs_size):
+    with pytest.raises(ValueError, match="positive"):
+        ReplayBuffer.empty(capacity, obs_size)
+
+
+def test_add_rejects_batch_larger_than_capacity():
+    with pytest.raises(ValueError, match="capacity 4"):
+        ReplayBuffer.empty(4, 3).add(batch(0, 5))
+
+
+def test_sequential_adds_fill_in_order():
+    buf = ReplayBuffer.empty(8, 3)
+    buf = buf.add(batch(0, 3))
+    buf = buf.add(batch(3, 3))
+    assert int(buf.size) == 6 and int(buf.position) == 6
+    np.testing.assert_array_equal(np.asarray(buf.data.obs[:6, 0]), np.arange(6))
+    np.testing.assert_array_equal(np.asarray(buf.data.action[:6]), np.arange(6) % 4)
+    np.testing.assert_array_equal(np.asarray(buf.data.terminated[:6]), np.arange(6) % 3 == 0)
+    # Unfilled rows stay zero.
+    assert not np.any(np.asarray(buf.data.obs[6:]))
+
+
+@pytest.mark.parametrize("n", [1, 3, 4])
+def test_wrap_around_overwrites_oldest(n):
+    """After many adds the buffer holds exactly the newest ``capacity`` transitions, each at id % capacity."""
+    capacity, total = 10, 0
+    buf = ReplayBuffer.empty(capacity, 2)
+    add = jax.jit(lambda b, t: b.add(t))
+    for _ in range(13):  # 13, 39 or 52 transitions: more than the capacity, not a multiple of it
+        buf = add(buf, batch(total, n, obs_size=2))
+        total += n
+    assert total > capacity and int(buf.size) == capacity
+    assert int(buf.position) == total % capacity
+    ids = np.asarray(buf.data.obs[:, 0]).astype(int)
+    newest = set(range(total - capacity, total))
+    assert set(ids.tolist()) == newest
+    for row, ident in enumerate(ids):
+        assert ident % capacity == row  # transition id i lives in row i % capacity
+        assert np.asarray(buf.data.next_obs[row, 1]) == pytest.approx(ident + 0.25)
+        assert float(buf.data.reward[row]) == pytest.approx(0.5 * ident)
+
+
+def test_batch_straddling_the_end_wraps():
+    buf = ReplayBuffer.empty(5, 1)
+    buf = buf.add(batch(0, 4, obs_size=1))
+    buf = buf.add(batch(4, 3, obs_size=1))  # rows 4, 0, 1
+    np.testing.assert_array_equal(np.asarray(buf.data.obs[:, 0]), [5, 6, 2, 3, 4])
+    assert int(buf.position) == 2 and int(buf.size) == 5
+
+
+def test_sample_only_from_filled_rows_and_rows_stay_together():
+    buf = ReplayBuffer.empty(100, 3).add(batch(0, 7))
+    sample = jax.jit(lambda b, k: b.sample(k, 4096))(buf, jax.random.PRNGKey(0))
+    ids = np.asarray(sample.obs[:, 0]).astype(int)
+    assert set(ids.tolist()) == set(range(7))  # every filled row drawn, no empty row
+    # Fields of one sampled row belong to the same transition.
+    np.testing.assert_array_equal(np.asarray(sample.action), ids % 4)
+    np.testing.assert_allclose(np.asarray(sample.next_obs[:, 2]), ids + 0.25)
+    np.testing.assert_array_equal(np.asarray(sample.terminated), ids % 3 == 0)
+
+
+def test_sampling_is_uniform_chi_square():
+    """Counts over 20 filled rows from 200,000 draws pass a chi-square test (df 19, p > 0.001)."""
+    buf = ReplayBuffer.empty(32, 1).add(batch(0, 20, obs_size=1))
+    sample = buf.sample(jax.random.PRNGKey(1), 200_000)
+    counts = np.bincount(np.asarray(sample.obs[:, 0]).astype(int), minlength=20)
+    assert counts.shape == (20,)
+    expected = 200_000 / 20
+    chi2 = float(((counts - expected) ** 2 / expected).sum())
+    assert chi2 < 43.8, f"chi-square {chi2:.1f} with 19 dof: sampling is not uniform ({counts})"
+
+
+def test_sampling_after_wrap_covers_the_whole_buffer_uniformly():
+    buf = ReplayBuffer.empty(16, 1)
+    for start in range(0, 40, 4):
+        buf = buf.add(batch(start, 4, obs_size=1))
+    sample = buf.sample(jax.random.PRNGKey(2), 64_000)
+    ids = np.asarray(sample.obs[:, 0]).astype(int)
+    assert set(ids.tolist()) == set(range(24, 40))
+    counts = np.bincount(ids - 24, minlength=16)
+    assert counts.min() > 0.9 * 4000 and counts.max() < 1.1 * 4000
+
+
+def test_sampling_depends_on_key_and_is_deterministic():
+    buf = ReplayBuffer.empty(64, 1).add(batch(0, 64, obs_size=1))
+    a = buf.sample(jax.random.PRNGKey(3), 32)
+    b = buf.sample(jax.random.PRNGKey(3), 32)
+    c = buf.sample(jax.random.PRNGKey(4), 32)
+    np.testing.assert_array_equal(np.asarray(a.obs), np.asarray(b.obs))
+    assert not np.array_equal(np.asarray(a.obs), np.asarray(c.obs))
+
+
+def test_buffer_is_a_pytree_that_vmaps():
+    """A batch of buffers (one per seed) adds and samples under vmap, each seed its own rows."""
+    seeds = 3
+    bufs = jax.vmap(lambda _: ReplayBuffer.empty(6, 2))(jnp.arange(seeds))
+    per_seed = jax.vmap(lambda s: batch(0, 2, obs_size=2))(jnp.arange(seeds))
+    per_seed = per_seed.replace(obs=per_seed.obs + 100.0 * jnp.arange(seeds)[:, None, None])
+    bufs = jax.vmap(lambda b, t: b.add(t))(bufs, per_seed)
+    assert bufs.data.obs.shape == (seeds, 6, 2) and bufs.capacity == 6
+    np.testing.assert_array_equal(np.asarray(bufs.size), [2, 2, 2])
+    samples = jax.vmap(lambda b, k: b.sample(k, 50))(bufs, jax.random.split(jax.random.PRNGKey(5), seeds))
+    for s in range(seeds):
+        assert set(np.asarray(samples.obs[s, :, 0]).tolist()) <= {100.0 * s, 100.0 * s + 1}
+    leaves = jax.tree.leaves(bufs)
+    assert len(leaves) == 7  # five data arrays, position, size

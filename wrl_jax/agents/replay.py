@@ -1,0 +1,113 @@
+"""A replay buffer written in JAX: fixed-size circular arrays in the training carry.
+
+DQN learns from transitions it stored earlier. Here the store is a pytree of
+preallocated arrays (``capacity`` rows each) plus a write position and a fill
+count, so it lives inside the compiled training loop like any other state:
+``add`` writes a batch of transitions (one per environment, per vector step)
+at the write position, wrapping around and overwriting the oldest rows once
+full; ``sample`` draws row indices uniformly, with replacement, from the
+filled part. Both are pure functions, ``jit``/``vmap``/``scan`` friendly, and
+a checkpoint of the runner state holds the buffer, so resuming is exact.
+
+``next_obs`` of a transition that ended its episode must be the observation
+the transition reached (the environment's ``info["final_obs"]``), not the
+first observation of the next episode: a truncated episode is bootstrapped
+from it, and only ``terminated`` stops the bootstrap.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+
+@struct.dataclass
+class Transition:
+    """A batch of transitions (leading axis: the batch).
+
+    Attributes:
+        obs: ``(B, obs_size)`` float32, the observation the action was taken in.
+        action: ``(B,)`` int32.
+        reward: ``(B,)`` float32.
+        next_obs: ``(B, obs_size)`` float32, the observation the transition reached
+            (before any automatic reset).
+        terminated: ``(B,)`` bool, True where the episode ended in a terminal state
+            (no bootstrap). A truncation is *not* a termination.
+    """
+
+    obs: jax.Array
+    action: jax.Array
+    reward: jax.Array
+    next_obs: jax.Array
+    terminated: jax.Array
+
+
+@struct.dataclass
+class ReplayBuffer:
+    """Circular storage of ``capacity`` transitions.
+
+    Attributes:
+        data: a :class:`Transition` whose arrays have ``capacity`` rows.
+        position: int32, the row the next transition is written to.
+        size: int32, how many rows hold transitions (grows to ``capacity``).
+    """
+
+    data: Transition
+    position: jax.Array
+    size: jax.Array
+
+    @property
+    def capacity(self) -> int:
+        """Rows of storage (static: an array shape)."""
+        return self.data.action.shape[-1]
+
+    @classmethod
+    def empty(cls, capacity: int, obs_size: int) -> "ReplayBuffer":
+        """A buffer of ``capacity`` zeroed rows, none of them filled."""
+        if int(capacity) < 1:
+            raise ValueError(f"replay buffer capacity must be a positive integer, got {capacity}")
+        if int(obs_size) < 1:
+            raise ValueError(f"observation size must be a positive integer, got {obs_size}")
+        capacity, obs_size = int(capacity), int(obs_size)
+        data = Transition(
+            obs=jnp.zeros((capacity, obs_size), jnp.float32),
+            action=jnp.zeros((capacity,), jnp.int32),
+            reward=jnp.zeros((capacity,), jnp.float32),
+            next_obs=jnp.zeros((capacity, obs_size), jnp.float32),
+            terminated=jnp.zeros((capacity,), bool),
+        )
+        return cls(data=data, position=jnp.zeros((), jnp.int32), size=jnp.zeros((), jnp.int32))
+
+    def add(self, batch: Transition) -> "ReplayBuffer":
+        """Write a batch of ``n`` transitions, oldest rows overwritten once full.
+
+        Row ``i`` of the batch goes to ``(position + i) % capacity``. The batch
+        must not be larger than the buffer (it would overwrite itself).
+        """
+        n = batch.action.shape[0]
+        capacity = self.capacity
+        if n > capacity:
+            raise ValueError(f"cannot add {n} transitions at once to a replay buffer of capacity {capacity}")
+        # A scatter to explicit rows handles every batch size and any write
+        # position; under vmap a slice write with a per-seed position would
+        # become a scatter anyway.
+        rows = (self.position + jnp.arange(n, dtype=jnp.int32)) % capacity
+        data = jax.tree.map(lambda store, new: store.at[rows].set(new.astype(store.dtype)), self.data, batch)
+        return ReplayBuffer(
+            data=data,
+            position=(self.position + n) % capacity,
+            size=jnp.minimum(self.size + n, capacity),
+        )
+
+    def sample(self, key: jax.Array, batch_size: int) -> Transition:
+        """``batch_size`` transitions drawn uniformly, with replacement, from the filled rows.
+
+        Rows are random 32-bit words modulo the fill count: for buffers far
+        smaller than 2**32 the bias is below ``size / 2**32`` (2e-5 for 100,000
+        rows), and one draw compiles much faster than ``jax.random.randint``.
+        The buffer must hold at least one transition; an empty one yields row 0.
+        """
+        bits = jax.random.bits(key, (batch_size,), jnp.uint32)
+        rows = (bits % jnp.maximum(self.size, 1).astype(jnp.uint32)).astype(jnp.int32)
+        return jax.tree.map(lambda store: store[rows], self.data)
