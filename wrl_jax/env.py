@@ -77,21 +77,13 @@ class Warehouse:
     # ------------------------------------------------------------------ reset
     def reset(self, key: jax.Array, params: EnvParams) -> tuple[jax.Array, EnvState]:
         """Start an episode with the item drawn uniformly from the layout's items."""
-        item_index = jax.random.randint(key, (), 0, params.num_items, dtype=jnp.int32)
-        return self.reset_to_item(item_index, params)
+        return self.reset_to_item(draw_item(key, params), params)
 
     def reset_to_item(self, item_index: jax.Array | int, params: EnvParams) -> tuple[jax.Array, EnvState]:
         """Start an episode with a chosen item (deterministic evaluation)."""
         if not isinstance(item_index, jax.core.Tracer) and not isinstance(params.num_items, jax.core.Tracer):
             _check_item_index(item_index, params)
-        item_index = jnp.asarray(item_index, dtype=jnp.int32)
-        state = EnvState(
-            pos=params.start,
-            item_index=item_index,
-            item_pos=params.items[item_index],
-            carrying=jnp.zeros((), dtype=bool),
-            time=jnp.zeros((), dtype=jnp.int32),
-        )
+        state = _initial_state(jnp.asarray(item_index, dtype=jnp.int32), params)
         return self.observe(state, params), state
 
     # ------------------------------------------------------------------- step
@@ -104,11 +96,14 @@ class Warehouse:
         transition reached; otherwise ``info["final_obs"]`` equals ``obs``.
         """
         obs, next_state, reward, terminated, truncated, info = self.step_env(state, action, params)
-        reset_obs, reset_state = self.reset(key, params)
+        reset_state = _initial_state(draw_item(key, params), params)
         done = terminated | truncated
         next_state = jax.tree.map(lambda fresh, cont: jnp.where(done, fresh, cont), reset_state, next_state)
         info = {**info, "final_obs": obs}
-        return jnp.where(done, reset_obs, obs), next_state, reward, terminated, truncated, info
+        # Observing the returned state gives the same values as selecting between
+        # the reset observation and the reached one (an observation is a function
+        # of the state alone), with one set of table lookups instead of two.
+        return self.observe(next_state, params), next_state, reward, terminated, truncated, info
 
     def step_env(self, state: EnvState, action: jax.Array | int, params: EnvParams) -> StepResult:
         """One transition of SPEC.md, without a reset (for tests and analysis).
@@ -173,6 +168,28 @@ class Warehouse:
         if self.observe_carrying:
             parts.append(state.carrying.astype(jnp.float32)[None])
         return jnp.concatenate(parts)
+
+
+def draw_item(key: jax.Array, params: EnvParams) -> jax.Array:
+    """The item index of a new episode, uniform over the layout's items, drawn from ``key``.
+
+    Exactly ``jax.random.randint(key, (), 0, num_items)``: the parity tests
+    replay the item a key draws. It is the largest single cost of
+    :meth:`Warehouse.step` (a key split and two threefry draws per environment
+    and step, for the automatic reset); see docs/throughput.md.
+    """
+    return jax.random.randint(key, (), 0, params.num_items, dtype=jnp.int32)
+
+
+def _initial_state(item_index: jax.Array, params: EnvParams) -> EnvState:
+    """The first state of an episode whose item is ``params.items[item_index]``."""
+    return EnvState(
+        pos=params.start,
+        item_index=item_index,
+        item_pos=params.items[item_index],
+        carrying=jnp.zeros((), dtype=bool),
+        time=jnp.zeros((), dtype=jnp.int32),
+    )
 
 
 # ---------------------------------------------------------------------- params
