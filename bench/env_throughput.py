@@ -1,0 +1,440 @@
+"""Environment throughput: random-action steps per second, JAX against the NumPy reference.
+
+Measures, in one process and interleaved round by round (so that every
+configuration sees the same load on a shared machine):
+
+* the JAX environment as a learner runs it: ``jax.jit`` of a ``lax.scan`` over
+  time of ``jax.vmap(env.step)`` over a batch of environments, with automatic
+  reset, at several batch sizes, for each registered layout;
+* the NumPy reference :class:`wrl_jax.reference.WarehouseReferenceEnv`: one
+  environment, a Python loop, ``reset()`` when an episode ends;
+* Gymnasium's ``SyncVectorEnv`` of reference environments (same-step autoreset,
+  the JAX environment's semantics).
+
+What one JAX "step" includes (per environment; everything inside the jitted scan):
+
+1. its share of one split of the carried key into (next key, action key, env key);
+2. a uniform random action: 2-bit fields of ``jax.random.bits`` words,
+   16 actions per 32-bit word (``--actions randint`` uses ``jax.random.randint``);
+3. its own key for the automatic reset: ``jax.random.split(env_key, batch)``,
+   what PureJaxRL-style learners (and this repository's PPO) do;
+4. ``env.step``: the transition, reward, termination and truncation, the
+   reset item drawn from that key, the auto-reset select and the observation;
+5. consuming everything a learner reads from the step: ``obs``,
+   ``info["final_obs"]``, ``reward``, ``terminated`` and ``truncated`` are
+   summed into a float32 checksum carried by the scan, so XLA cannot drop any
+   of that work (the info flags ``collision``, ``wall_bump``, ... are not read).
+
+Compile time (``lower`` + ``compile``) is reported apart; then one warm-up
+call, then ``--repeats`` timed calls, each ``block_until_ready``-ed, median
+reported. The environment state is carried from call to call, as in training.
+
+Run from the repository root::
+
+    .venv/bin/python bench/env_throughput.py            # full run, writes bench/results/
+    .venv/bin/python bench/env_throughput.py --quick    # a smoke run (about a minute)
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import importlib.metadata
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:  # run as a script from a checkout without `pip install -e .`
+    sys.path.insert(0, str(ROOT))
+
+import gymnasium as gym  # noqa: E402
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+import wrl_jax  # noqa: E402
+from wrl_jax.env import Warehouse  # noqa: E402
+from wrl_jax.reference import make_reference  # noqa: E402
+from wrl_jax.types import EnvParams, EnvState  # noqa: E402
+
+DEFAULT_ENVS = ("Warehouse-8x8-v0", "Warehouse-12x12-v0")
+DEFAULT_BATCHES = (1, 4, 16, 64, 256, 1024, 4096, 16384, 65536)
+QUICK_BATCHES = (1, 256, 65536)
+DEFAULT_KEY_IMPLS = ("threefry2x32", "philox4x32")
+RESULTS = ROOT / "bench" / "results"
+
+
+# --------------------------------------------------------------------- JAX side
+def random_actions(key: jax.Array, batch: int, how: str) -> jax.Array:
+    """``batch`` uniform actions in {0, 1, 2, 3}.
+
+    ``packed``: every 2-bit field of a uniform 32-bit word is uniform and
+    independent of the others, so one word gives 16 actions (one threefry block
+    per 16 environments). ``randint``: ``jax.random.randint``, the obvious call.
+    """
+    if how == "randint":
+        return jax.random.randint(key, (batch,), 0, 4, dtype=jnp.int32)
+    words = jax.random.bits(key, (-(-batch // 16),), jnp.uint32)
+    fields = (words[:, None] >> (2 * jnp.arange(16, dtype=jnp.uint32))) & 3
+    return fields.reshape(-1)[:batch].astype(jnp.int32)
+
+
+PARTS = {
+    "step": "the full step, as in the table",
+    "rng_only": "only the random numbers of a step: actions, per-env keys, and the reset item drawn from each",
+    "shared_key": "env.step with ONE reset key shared by the batch: the per-env keys and draws removed",
+}
+"""The cost breakdown (``--breakdown``): what a step costs, part by part, at one batch size."""
+
+
+def make_rollout(env: Warehouse, params: EnvParams, batch: int, horizon: int, actions: str,
+                 part: str = "step") -> Callable:
+    """``(state, key, checksum) -> (state, key, checksum)`` after ``horizon`` steps of ``batch`` envs."""
+    vstep = jax.vmap(env.step, in_axes=(0, 0, 0, None))
+    shared_key_step = jax.vmap(env.step, in_axes=(None, 0, 0, None))
+    draw = jax.vmap(wrl_jax.env.draw_item, in_axes=(0, None))
+
+    def one_step(carry, _):
+        state, key, checksum = carry
+        key, action_key, env_key = jax.random.split(key, 3)
+        action = random_actions(action_key, batch, actions)
+        if part == "rng_only":
+            items = draw(jax.random.split(env_key, batch), params)
+            checksum = checksum + jnp.sum(items.astype(jnp.float32)) + jnp.sum(action.astype(jnp.float32))
+            return (state, key, checksum), None
+        if part == "shared_key":
+            obs, state, reward, terminated, truncated, info = shared_key_step(env_key, state, action, params)
+        else:
+            env_keys = jax.random.split(env_key, batch)
+            obs, state, reward, terminated, truncated, info = vstep(env_keys, state, action, params)
+        checksum = (
+            checksum
+            + jnp.sum(obs)
+            + jnp.sum(info["final_obs"])
+            + jnp.sum(reward)
+            + jnp.sum(terminated.astype(jnp.float32))
+            + jnp.sum(truncated.astype(jnp.float32)) * 2.0
+        )
+        return (state, key, checksum), None
+
+    def rollout(state: EnvState, key: jax.Array, checksum: jax.Array):
+        return jax.lax.scan(one_step, (state, key, checksum), None, length=horizon)[0]
+
+    return rollout
+
+
+@dataclass
+class JaxCase:
+    env_name: str
+    key_impl: str
+    batch: int
+    horizon: int
+    part: str = "step"
+    compile_s: float = 0.0
+    times_s: list[float] = field(default_factory=list)
+    checksum: float = 0.0
+    # not serialized
+    _fn: Callable | None = None
+    _carry: tuple | None = None
+
+    @property
+    def label(self) -> str:
+        part = "" if self.part == "step" else f" [{self.part}]"
+        return f"{self.env_name} {self.key_impl} batch={self.batch}{part}"
+
+    def steps_per_call(self) -> int:
+        return self.batch * self.horizon
+
+    def prepare(self, actions: str, seed: int) -> None:
+        env, params = wrl_jax.make(self.env_name)
+        key = jax.random.key(seed, impl=self.key_impl)
+        reset_key, run_key = jax.random.split(key)
+        _, state = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))(jax.random.split(reset_key, self.batch), params)
+        carry = (state, run_key, jnp.float32(0.0))
+        rollout = make_rollout(env, params, self.batch, self.horizon, actions, self.part)
+        start = time.perf_counter()
+        compiled = jax.jit(rollout).lower(*carry).compile()
+        self.compile_s = time.perf_counter() - start
+        carry = jax.block_until_ready(compiled(*carry))  # warm-up call, not timed
+        self._fn, self._carry = compiled, carry
+
+    def time_once(self) -> None:
+        start = time.perf_counter()
+        carry = jax.block_until_ready(self._fn(*self._carry))
+        self.times_s.append(time.perf_counter() - start)
+        self._carry = carry
+        self.checksum = float(carry[2])
+
+    def summary(self) -> dict:
+        median = statistics.median(self.times_s)
+        return {"env_name": self.env_name, "key_impl": self.key_impl, "batch": self.batch, "part": self.part,
+                "horizon": self.horizon, "steps_per_call": self.steps_per_call(), "compile_s": self.compile_s,
+                "times_s": self.times_s, "median_s": median, "steps_per_s": self.steps_per_call() / median,
+                "checksum": self.checksum}
+
+
+# --------------------------------------------------------------- reference side
+@dataclass
+class ReferenceCase:
+    """The NumPy reference, one env (``num_envs == 0``) or a SyncVectorEnv of ``num_envs``."""
+
+    env_name: str
+    num_envs: int
+    steps: int
+    times_s: list[float] = field(default_factory=list)
+    _env: object = None
+    _rng: np.random.Generator | None = None
+    _checksum: float = 0.0
+
+    @property
+    def kind(self) -> str:
+        return "numpy reference, 1 env" if self.num_envs == 0 else f"gymnasium SyncVectorEnv x{self.num_envs}"
+
+    def prepare(self, seed: int) -> None:
+        self._rng = np.random.default_rng(seed)
+        if self.num_envs == 0:
+            self._env = make_reference(self.env_name)
+            self._env.reset(seed=seed)
+        else:
+            self._env = gym.vector.SyncVectorEnv(
+                [lambda: make_reference(self.env_name) for _ in range(self.num_envs)],
+                autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
+            )
+            self._env.reset(seed=seed)
+        self.time_once(record=False)  # warm-up
+
+    def time_once(self, record: bool = True) -> None:
+        start = time.perf_counter()
+        if self.num_envs == 0:
+            self._run_single()
+        else:
+            self._run_vector()
+        if record:
+            self.times_s.append(time.perf_counter() - start)
+
+    def _run_single(self) -> None:
+        env, total = self._env, 0.0
+        # Actions drawn in blocks (as the JAX side draws them for a whole batch).
+        for block in range(0, self.steps, 4096):
+            for action in self._rng.integers(0, 4, size=min(4096, self.steps - block)).tolist():
+                _, reward, terminated, truncated, _ = env.step(action)
+                total += reward
+                if terminated or truncated:
+                    env.reset()
+        self._checksum = total
+
+    def _run_vector(self) -> None:
+        venv, total = self._env, 0.0
+        for _ in range(self.steps // self.num_envs):
+            _, reward, _, _, _ = venv.step(self._rng.integers(0, 4, size=self.num_envs))
+            total += float(reward.sum())
+        self._checksum = total
+
+    def transitions(self) -> int:
+        return self.steps if self.num_envs == 0 else (self.steps // self.num_envs) * self.num_envs
+
+    def summary(self) -> dict:
+        median = statistics.median(self.times_s)
+        return {"env_name": self.env_name, "kind": self.kind, "num_envs": max(self.num_envs, 1),
+                "steps_per_call": self.transitions(), "times_s": self.times_s, "median_s": median,
+                "steps_per_s": self.transitions() / median}
+
+
+# ------------------------------------------------------------------- reporting
+def machine_info() -> dict:
+    cpu = platform.processor()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                                text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        commit = None
+    return {
+        "cpu": cpu,
+        "cpu_count": os.cpu_count(),
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "jaxlib": importlib.metadata.version("jaxlib"),
+        "numpy": np.__version__,
+        "gymnasium": gym.__version__,
+        "jax_devices": [str(d) for d in jax.devices()],
+        "threefry_partitionable": bool(jax.config.jax_threefry_partitionable),
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
+        "git_commit": commit,
+        "date_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+    }
+
+
+def load_average() -> list[float] | None:
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        return None
+
+
+def markdown_table(jax_rows: list[dict], ref_rows: list[dict]) -> str:
+    reference = {row["env_name"]: row["steps_per_s"] for row in ref_rows if row["kind"].startswith("numpy")}
+    lines = [
+        "| environment | implementation | batch | steps/s | x reference | compile s |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
+    for row in ref_rows:
+        ratio = row["steps_per_s"] / reference[row["env_name"]]
+        lines.append(f"| {row['env_name']} | {row['kind']} | {row['num_envs']} | "
+                     f"{row['steps_per_s']:,.0f} | {ratio:.2f} | - |")
+    for row in jax_rows:
+        ratio = row["steps_per_s"] / reference[row["env_name"]]
+        impl = f"JAX env.step, {row['key_impl']} keys"
+        lines.append(f"| {row['env_name']} | {impl} | {row['batch']:,} | {row['steps_per_s']:,.0f} | "
+                     f"{ratio:,.0f} | {row['compile_s']:.2f} |")
+    return "\n".join(lines)
+
+
+def breakdown_table(jax_rows: list[dict]) -> str:
+    """Each part of a step at the largest batch: steps/s, nanoseconds per env step, share of the full step."""
+    largest = max(row["batch"] for row in jax_rows)
+    rows = [row for row in jax_rows if row["batch"] == largest]
+    full = {(row["env_name"], row["key_impl"]): row for row in rows if row["part"] == "step"}
+    lines = [
+        f"Cost breakdown at batch {largest:,} (same run, interleaved; ns = wall-clock nanoseconds per env step "
+        f"on the whole machine):",
+        "",
+        "| environment | keys | part | steps/s | ns per env step | share of the full step |",
+        "|---|---|---|---:|---:|---:|",
+    ]
+    for row in sorted(rows, key=lambda r: (r["env_name"], r["key_impl"], list(PARTS).index(r["part"]))):
+        ns = 1e9 / row["steps_per_s"]
+        share = (1e9 / full[(row["env_name"], row["key_impl"])]["steps_per_s"])
+        lines.append(f"| {row['env_name']} | {row['key_impl']} | {row['part']}: {PARTS[row['part']]} | "
+                     f"{row['steps_per_s']:,.0f} | {ns:.1f} | {ns / share:.0%} |")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------ main
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--envs", nargs="+", default=list(DEFAULT_ENVS), help="registered environment names")
+    parser.add_argument("--batch-sizes", nargs="+", type=int, default=None,
+                        help=f"JAX batch sizes (default {' '.join(map(str, DEFAULT_BATCHES))})")
+    parser.add_argument("--key-impls", nargs="+", default=list(DEFAULT_KEY_IMPLS),
+                        help="jax.random key implementations the caller passes (threefry2x32 is JAX's default)")
+    parser.add_argument("--horizon", type=int, default=None,
+                        help="scan length of one timed call (default: steps-per-call / batch, within [16, 4096])")
+    parser.add_argument("--steps-per-call", type=int, default=None,
+                        help="target env steps per timed call when --horizon is not given (default 2**21)")
+    parser.add_argument("--repeats", type=int, default=None, help="timed calls per configuration (default 7)")
+    parser.add_argument("--actions", choices=("packed", "randint"), default="packed",
+                        help="how random actions are drawn (see random_actions)")
+    parser.add_argument("--reference-steps", type=int, default=None,
+                        help="transitions per timed call of the NumPy reference (default 20000)")
+    parser.add_argument("--vector-sizes", nargs="*", type=int, default=None,
+                        help="SyncVectorEnv sizes (default 16 256; none to skip)")
+    parser.add_argument("--breakdown", action=argparse.BooleanOptionalAction, default=None,
+                        help="also time the parts of a step at the largest batch (default: on, off with --quick)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--quick", action="store_true",
+                        help="smoke run: batches 1 256 65536, 3 repeats, fewer steps")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="JSON output (default bench/results/env_throughput.json; the .md table beside it)")
+    args = parser.parse_args(argv)
+    quick = args.quick
+    args.batch_sizes = args.batch_sizes or list(QUICK_BATCHES if quick else DEFAULT_BATCHES)
+    args.steps_per_call = args.steps_per_call or (2**18 if quick else 2**21)
+    args.repeats = args.repeats or (3 if quick else 7)
+    args.reference_steps = args.reference_steps or (3000 if quick else 20000)
+    args.vector_sizes = args.vector_sizes if args.vector_sizes is not None else ([16] if quick else [16, 256])
+    args.breakdown = (not quick) if args.breakdown is None else args.breakdown
+    if args.out is None:
+        args.out = RESULTS / ("env_throughput_quick.json" if quick else "env_throughput.json")
+    for name in args.envs:
+        wrl_jax.registry.spec(name)  # a clear error for an unknown name, before any work
+    if min(args.batch_sizes) < 1 or args.repeats < 1:
+        parser.error("batch sizes and --repeats must be positive")
+    return args
+
+
+def horizon_for(batch: int, args: argparse.Namespace) -> int:
+    if args.horizon is not None:
+        return args.horizon
+    return int(min(4096, max(16, args.steps_per_call // batch)))
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = parse_args(argv)
+    command = " ".join([Path(sys.executable).name, *sys.argv]) if argv is None else "main(" + repr(argv) + ")"
+    load_before = load_average()
+    print(f"# env throughput: {command}", flush=True)
+
+    jax_cases = [JaxCase(name, impl, batch, horizon_for(batch, args))
+                 for name in args.envs for impl in args.key_impls for batch in args.batch_sizes]
+    if args.breakdown:
+        largest = max(args.batch_sizes)
+        jax_cases += [JaxCase(name, impl, largest, horizon_for(largest, args), part)
+                      for name in args.envs for impl in args.key_impls for part in PARTS if part != "step"]
+    ref_cases = [ReferenceCase(name, n, args.reference_steps)
+                 for name in args.envs for n in [0, *args.vector_sizes]]
+    for case in jax_cases:
+        case.prepare(args.actions, args.seed)
+        print(f"compiled {case.label:48s} horizon {case.horizon:5d}  {case.compile_s:5.2f} s", flush=True)
+    for case in ref_cases:
+        case.prepare(args.seed)
+
+    # Interleaved rounds: every configuration is timed once per round.
+    for round_index in range(args.repeats):
+        for case in ref_cases:
+            case.time_once()
+        for case in jax_cases:
+            case.time_once()
+        print(f"round {round_index + 1}/{args.repeats} done, load average {load_average()}", flush=True)
+
+    jax_rows = [case.summary() for case in jax_cases]
+    ref_rows = [case.summary() for case in ref_cases]
+    reference = {row["env_name"]: row["steps_per_s"] for row in ref_rows if row["num_envs"] == 1
+                 and row["kind"].startswith("numpy")}
+    for row in jax_rows + ref_rows:
+        row["ratio_vs_reference"] = row["steps_per_s"] / reference[row["env_name"]]
+    table = markdown_table([row for row in jax_rows if row["part"] == "step"], ref_rows)
+    if args.breakdown:
+        table += "\n\n" + breakdown_table(jax_rows)
+    result = {
+        "command": command,
+        "what_one_step_includes": __doc__.split("What one JAX \"step\" includes")[1].split("Compile time")[0].strip(),
+        "settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
+        "machine": machine_info(),
+        "load_average_before": load_before,
+        "load_average_after": load_average(),
+        "jax": jax_rows,
+        "reference": ref_rows,
+        "table_markdown": table,
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    args.out.with_suffix(".md").write_text(
+        f"Command: `{command}`\n\nMachine: {result['machine']['cpu']} ({result['machine']['cpu_count']} CPUs), "
+        f"jax {jax.__version__}, load average before/after {load_before} / {result['load_average_after']}\n\n"
+        f"{table}\n"
+    )
+    print()
+    print(table)
+    print(f"\nwrote {args.out} and {args.out.with_suffix('.md')}")
+    return result
+
+
+if __name__ == "__main__":
+    main()
