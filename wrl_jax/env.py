@@ -100,10 +100,12 @@ class Warehouse:
         done = terminated | truncated
         next_state = jax.tree.map(lambda fresh, cont: jnp.where(done, fresh, cont), reset_state, next_state)
         info = {**info, "final_obs": obs}
-        # Observing the returned state gives the same values as selecting between
-        # the reset observation and the reached one (an observation is a function
-        # of the state alone), with one set of table lookups instead of two.
-        return self.observe(next_state, params), next_state, reward, terminated, truncated, info
+        # A select between the reached and the reset observation, rather than
+        # observing the returned state: learners read ``final_obs`` too, so the
+        # reached observation is computed anyway, and the reset one costs only
+        # the drawn item's lookups (robot at start and goal are the same for all).
+        reset_obs = self.observe(reset_state, params)
+        return jnp.where(done, reset_obs, obs), next_state, reward, terminated, truncated, info
 
     def step_env(self, state: EnvState, action: jax.Array | int, params: EnvParams) -> StepResult:
         """One transition of SPEC.md, without a reset (for tests and analysis).
