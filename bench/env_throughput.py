@@ -11,19 +11,25 @@ configuration sees the same load on a shared machine):
 * Gymnasium's ``SyncVectorEnv`` of reference environments (same-step autoreset,
   the JAX environment's semantics).
 
-What one JAX "step" includes (per environment; everything inside the jitted scan):
+What one JAX "step" includes (per environment; everything inside the one jitted call):
 
-1. its share of one split of the carried key into (next key, action key, env key);
-2. a uniform random action: 2-bit fields of ``jax.random.bits`` words,
-   16 actions per 32-bit word (``--actions randint`` uses ``jax.random.randint``);
-3. its own key for the automatic reset: ``jax.random.split(env_key, batch)``,
-   what PureJaxRL-style learners (and this repository's PPO) do;
-4. ``env.step``: the transition, reward, termination and truncation, the
-   reset item drawn from that key, the auto-reset select and the observation;
-5. consuming everything a learner reads from the step: ``obs``,
+1. a uniform random action: 2-bit fields of ``jax.random.bits`` words, 16
+   actions per 32-bit word, the words of the whole call drawn before the scan
+   (``--actions randint``: ``jax.random.randint``);
+2. its own key for the automatic reset: the scan carries a key, splits it once
+   per step, and ``jax.random.split(step_key, batch)`` gives each environment
+   one (what PureJaxRL-style learners and this repository's PPO do;
+   ``--env-keys fold_in`` folds the environment index in instead);
+3. ``env.step``: the transition, reward, termination and truncation, the
+   reset item drawn from that key (``jax.random.randint``), the auto-reset
+   select, the observation and ``info["final_obs"]``;
+4. consuming everything a learner reads from the step: ``obs``,
    ``info["final_obs"]``, ``reward``, ``terminated`` and ``truncated`` are
    summed into a float32 checksum carried by the scan, so XLA cannot drop any
    of that work (the info flags ``collision``, ``wall_bump``, ... are not read).
+
+``params`` is an argument of the jitted function, not a constant folded into
+it, as in this repository's learners.
 
 Compile time (``lower`` + ``compile``) is reported apart; then one warm-up
 call, then ``--repeats`` timed calls, each ``block_until_ready``-ed, median
@@ -73,17 +79,28 @@ RESULTS = ROOT / "bench" / "results"
 
 
 # --------------------------------------------------------------------- JAX side
-def random_actions(key: jax.Array, batch: int, how: str) -> jax.Array:
-    """``batch`` uniform actions in {0, 1, 2, 3}.
+def draw_action_source(key: jax.Array, horizon: int, batch: int, how: str) -> jax.Array:
+    """The random actions of a whole call, drawn in one go before the scan.
 
-    ``packed``: every 2-bit field of a uniform 32-bit word is uniform and
-    independent of the others, so one word gives 16 actions (one threefry block
-    per 16 environments). ``randint``: ``jax.random.randint``, the obvious call.
+    ``packed`` (default): ``(horizon, ceil(batch / 16))`` uint32 words; every
+    2-bit field of a uniform word is uniform on {0, 1, 2, 3} and independent
+    of the others, so a word holds 16 actions (one random block per 16
+    environments), unpacked in the step by :func:`actions_at`. The words are
+    materialized as the scan's input on purpose: if the generator were fused
+    into the unpacking, XLA would recompute each word once per action (it
+    does so with unrolled generators such as philox).
+    ``randint``: ``jax.random.randint(key, (horizon, batch), 0, 4)``, the obvious call.
     """
     if how == "randint":
-        return jax.random.randint(key, (batch,), 0, 4, dtype=jnp.int32)
-    words = jax.random.bits(key, (-(-batch // 16),), jnp.uint32)
-    fields = (words[:, None] >> (2 * jnp.arange(16, dtype=jnp.uint32))) & 3
+        return jax.random.randint(key, (horizon, batch), 0, 4, dtype=jnp.int32)
+    return jax.random.bits(key, (horizon, -(-batch // 16)), jnp.uint32)
+
+
+def actions_at(source: jax.Array, batch: int, how: str) -> jax.Array:
+    """The ``batch`` actions of one step from its row of :func:`draw_action_source`."""
+    if how == "randint":
+        return source
+    fields = (source[:, None] >> (2 * jnp.arange(16, dtype=jnp.uint32))) & 3
     return fields.reshape(-1)[:batch].astype(jnp.int32)
 
 
@@ -95,38 +112,52 @@ PARTS = {
 """The cost breakdown (``--breakdown``): what a step costs, part by part, at one batch size."""
 
 
-def make_rollout(env: Warehouse, params: EnvParams, batch: int, horizon: int, actions: str,
-                 part: str = "step") -> Callable:
-    """``(state, key, checksum) -> (state, key, checksum)`` after ``horizon`` steps of ``batch`` envs."""
+def per_env_keys(key: jax.Array, batch: int, how: str) -> jax.Array:
+    """``batch`` keys for the automatic resets: ``jax.random.split`` or ``fold_in`` of the env index."""
+    if how == "fold_in":
+        return jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, jnp.arange(batch, dtype=jnp.uint32))
+    return jax.random.split(key, batch)
+
+
+def make_rollout(env: Warehouse, batch: int, horizon: int, actions: str, part: str = "step",
+                 env_keys: str = "split") -> Callable:
+    """``(params, state, key, checksum) -> (state, key, checksum)`` after ``horizon`` steps of ``batch`` envs.
+
+    ``params`` is an argument, not a constant baked into the program, as in
+    this repository's learners (one compiled program serves every layout of a size).
+    """
     vstep = jax.vmap(env.step, in_axes=(0, 0, 0, None))
     shared_key_step = jax.vmap(env.step, in_axes=(None, 0, 0, None))
     draw = jax.vmap(wrl_jax.env.draw_item, in_axes=(0, None))
 
-    def one_step(carry, _):
-        state, key, checksum = carry
-        key, action_key, env_key = jax.random.split(key, 3)
-        action = random_actions(action_key, batch, actions)
-        if part == "rng_only":
-            items = draw(jax.random.split(env_key, batch), params)
-            checksum = checksum + jnp.sum(items.astype(jnp.float32)) + jnp.sum(action.astype(jnp.float32))
-            return (state, key, checksum), None
-        if part == "shared_key":
-            obs, state, reward, terminated, truncated, info = shared_key_step(env_key, state, action, params)
-        else:
-            env_keys = jax.random.split(env_key, batch)
-            obs, state, reward, terminated, truncated, info = vstep(env_keys, state, action, params)
-        checksum = (
-            checksum
-            + jnp.sum(obs)
-            + jnp.sum(info["final_obs"])
-            + jnp.sum(reward)
-            + jnp.sum(terminated.astype(jnp.float32))
-            + jnp.sum(truncated.astype(jnp.float32)) * 2.0
-        )
-        return (state, key, checksum), None
+    def rollout(params: EnvParams, state: EnvState, key: jax.Array, checksum: jax.Array):
+        key, action_key = jax.random.split(key)
+        action_source = draw_action_source(action_key, horizon, batch, actions)
 
-    def rollout(state: EnvState, key: jax.Array, checksum: jax.Array):
-        return jax.lax.scan(one_step, (state, key, checksum), None, length=horizon)[0]
+        def one_step(carry, source):
+            state, key, checksum = carry
+            key, env_key = jax.random.split(key)
+            action = actions_at(source, batch, actions)
+            if part == "rng_only":
+                items = draw(per_env_keys(env_key, batch, env_keys), params)
+                checksum = checksum + jnp.sum(items.astype(jnp.float32)) + jnp.sum(action.astype(jnp.float32))
+                return (state, key, checksum), None
+            if part == "shared_key":
+                obs, state, reward, terminated, truncated, info = shared_key_step(env_key, state, action, params)
+            else:
+                keys = per_env_keys(env_key, batch, env_keys)
+                obs, state, reward, terminated, truncated, info = vstep(keys, state, action, params)
+            checksum = (
+                checksum
+                + jnp.sum(obs)
+                + jnp.sum(info["final_obs"])
+                + jnp.sum(reward)
+                + jnp.sum(terminated.astype(jnp.float32))
+                + jnp.sum(truncated.astype(jnp.float32)) * 2.0
+            )
+            return (state, key, checksum), None
+
+        return jax.lax.scan(one_step, (state, key, checksum), action_source)[0]
 
     return rollout
 
@@ -140,9 +171,11 @@ class JaxCase:
     part: str = "step"
     compile_s: float = 0.0
     times_s: list[float] = field(default_factory=list)
+    cpu_s: list[float] = field(default_factory=list)
     checksum: float = 0.0
     # not serialized
     _fn: Callable | None = None
+    _params: EnvParams | None = None
     _carry: tuple | None = None
 
     @property
@@ -153,23 +186,24 @@ class JaxCase:
     def steps_per_call(self) -> int:
         return self.batch * self.horizon
 
-    def prepare(self, actions: str, seed: int) -> None:
+    def prepare(self, actions: str, env_keys: str, seed: int) -> None:
         env, params = wrl_jax.make(self.env_name)
         key = jax.random.key(seed, impl=self.key_impl)
         reset_key, run_key = jax.random.split(key)
         _, state = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))(jax.random.split(reset_key, self.batch), params)
         carry = (state, run_key, jnp.float32(0.0))
-        rollout = make_rollout(env, params, self.batch, self.horizon, actions, self.part)
+        rollout = make_rollout(env, self.batch, self.horizon, actions, self.part, env_keys)
         start = time.perf_counter()
-        compiled = jax.jit(rollout).lower(*carry).compile()
+        compiled = jax.jit(rollout).lower(params, *carry).compile()
         self.compile_s = time.perf_counter() - start
-        carry = jax.block_until_ready(compiled(*carry))  # warm-up call, not timed
-        self._fn, self._carry = compiled, carry
+        carry = jax.block_until_ready(compiled(params, *carry))  # warm-up call, not timed
+        self._fn, self._params, self._carry = compiled, params, carry
 
     def time_once(self) -> None:
-        start = time.perf_counter()
-        carry = jax.block_until_ready(self._fn(*self._carry))
+        start, cpu_start = time.perf_counter(), time.process_time()
+        carry = jax.block_until_ready(self._fn(self._params, *self._carry))
         self.times_s.append(time.perf_counter() - start)
+        self.cpu_s.append(time.process_time() - cpu_start)
         self._carry = carry
         self.checksum = float(carry[2])
 
@@ -178,6 +212,7 @@ class JaxCase:
         return {"env_name": self.env_name, "key_impl": self.key_impl, "batch": self.batch, "part": self.part,
                 "horizon": self.horizon, "steps_per_call": self.steps_per_call(), "compile_s": self.compile_s,
                 "times_s": self.times_s, "median_s": median, "steps_per_s": self.steps_per_call() / median,
+                "cpu_s": self.cpu_s, "steps_per_cpu_s": self.steps_per_call() / statistics.median(self.cpu_s),
                 "checksum": self.checksum}
 
 
@@ -192,7 +227,7 @@ class ReferenceCase:
     times_s: list[float] = field(default_factory=list)
     _env: object = None
     _rng: np.random.Generator | None = None
-    _checksum: float = 0.0
+    reward_sum: float = 0.0
 
     @property
     def kind(self) -> str:
@@ -229,14 +264,14 @@ class ReferenceCase:
                 total += reward
                 if terminated or truncated:
                     env.reset()
-        self._checksum = total
+        self.reward_sum = float(total)
 
     def _run_vector(self) -> None:
         venv, total = self._env, 0.0
         for _ in range(self.steps // self.num_envs):
             _, reward, _, _, _ = venv.step(self._rng.integers(0, 4, size=self.num_envs))
             total += float(reward.sum())
-        self._checksum = total
+        self.reward_sum = float(total)
 
     def transitions(self) -> int:
         return self.steps if self.num_envs == 0 else (self.steps // self.num_envs) * self.num_envs
@@ -245,7 +280,7 @@ class ReferenceCase:
         median = statistics.median(self.times_s)
         return {"env_name": self.env_name, "kind": self.kind, "num_envs": max(self.num_envs, 1),
                 "steps_per_call": self.transitions(), "times_s": self.times_s, "median_s": median,
-                "steps_per_s": self.transitions() / median}
+                "steps_per_s": self.transitions() / median, "reward_sum": self.reward_sum}
 
 
 # ------------------------------------------------------------------- reporting
@@ -261,6 +296,10 @@ def machine_info() -> dict:
     try:
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
                                 text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "wrl_jax", "bench/env_throughput.py"],
+                               cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
+        if dirty:
+            commit += " (with uncommitted changes to wrl_jax/ or this script)"
     except (OSError, subprocess.CalledProcessError):
         commit = None
     return {
@@ -300,6 +339,7 @@ def markdown_table(jax_rows: list[dict], ref_rows: list[dict]) -> str:
     for row in jax_rows:
         ratio = row["steps_per_s"] / reference[row["env_name"]]
         impl = f"JAX env.step, {row['key_impl']} keys"
+        impl += " (JAX default)" if row["key_impl"] == "threefry2x32" else " (caller's choice)"
         lines.append(f"| {row['env_name']} | {impl} | {row['batch']:,} | {row['steps_per_s']:,.0f} | "
                      f"{ratio:,.0f} | {row['compile_s']:.2f} |")
     return "\n".join(lines)
@@ -341,6 +381,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--repeats", type=int, default=None, help="timed calls per configuration (default 7)")
     parser.add_argument("--actions", choices=("packed", "randint"), default="packed",
                         help="how random actions are drawn (see random_actions)")
+    parser.add_argument("--env-keys", choices=("split", "fold_in"), default="split",
+                        help="how the per-env reset keys are made from the step's key (see per_env_keys)")
     parser.add_argument("--reference-steps", type=int, default=None,
                         help="transitions per timed call of the NumPy reference (default 20000)")
     parser.add_argument("--vector-sizes", nargs="*", type=int, default=None,
@@ -390,7 +432,7 @@ def main(argv: list[str] | None = None) -> dict:
     ref_cases = [ReferenceCase(name, n, args.reference_steps)
                  for name in args.envs for n in [0, *args.vector_sizes]]
     for case in jax_cases:
-        case.prepare(args.actions, args.seed)
+        case.prepare(args.actions, args.env_keys, args.seed)
         print(f"compiled {case.label:48s} horizon {case.horizon:5d}  {case.compile_s:5.2f} s", flush=True)
     for case in ref_cases:
         case.prepare(args.seed)
