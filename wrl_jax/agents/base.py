@@ -17,6 +17,8 @@ width, number of environments, rollout length) is static, on the config.
 from __future__ import annotations
 
 import abc
+import dataclasses
+from collections.abc import Mapping
 from typing import Any, ClassVar, Generic, TypeVar
 
 import jax
@@ -79,6 +81,44 @@ class Algorithm(abc.ABC, Generic[RunnerT]):
     @abc.abstractmethod
     def greedy_action(self, network_params: Any, obs: jax.Array) -> jax.Array:
         """The deterministic action for one observation (argmax Q, or the policy's mode)."""
+
+    def flops_per_update(self) -> int | None:
+        """Floating-point operations one update of one seed costs (network passes), if known.
+
+        Optional: the CLI divides it by the measured time to report achieved
+        GFLOP/s against ``networks.CPU_MATMUL_PEAK_GFLOPS``.
+        """
+        return None
+
+
+@dataclasses.dataclass(frozen=True)
+class AlgoSpec:
+    """How the shared CLI (``wrl_jax.cli``) and ``python -m wrl_jax.evaluate`` find an algorithm.
+
+    Each algorithm module defines one as ``SPEC``; ``wrl_jax.cli.ALGORITHM_MODULES``
+    maps the algorithm's name to that module.
+
+    Attributes:
+        name: ``"ppo"``, ``"dqn"``: also the checkpoint's ``algo`` field.
+        config_cls: the config dataclass; every field becomes a CLI flag. It must
+            provide ``validate()`` (raising ``ValueError``) and a
+            ``total_timesteps`` field.
+        algorithm_cls: ``algorithm_cls(config, env, env_params)``.
+        presets: preset name -> config instance (``--preset``).
+        default_env: environment the command trains on by default.
+        default_preset: preset used without ``--preset``.
+        default_num_seeds: seeds trained at once by default.
+        study: the study's Table 3 column for this algorithm (metric -> text), shown beside ours.
+    """
+
+    name: str
+    config_cls: type
+    algorithm_cls: type[Algorithm]
+    presets: Mapping[str, Any]
+    default_env: str
+    default_preset: str = "default"
+    default_num_seeds: int = 4
+    study: Mapping[str, str] | None = None
 
 
 @struct.dataclass

@@ -1,0 +1,12 @@
+"""``python -m wrl_jax.evaluate --run DIR``: evaluate a trained run's checkpoint (PPO or DQN).
+
+Every seed's greedy policy on every item index; prints the Table-3-style table
+(``--items`` adds the per-item table, ``--json FILE`` writes the full result).
+"""
+
+import sys
+
+from wrl_jax.cli import evaluate_main
+
+if __name__ == "__main__":
+    sys.exit(evaluate_main())

@@ -1,0 +1,525 @@
+"""The training driver shared by every algorithm (PPO, DQN).
+
+Two shapes of the same loop:
+
+- :func:`make_train` / :func:`make_train_seeds`: PureJaxRL's shape. ``train(key)``
+  is ``init`` followed by one ``lax.scan`` of ``update`` over all updates, a
+  single pure function to ``jit`` (and ``vmap`` over seeds or sweep points).
+- :class:`Trainer` and :func:`run`: the same updates for a batch of seeds, cut
+  into *chunks*: one jitted function scans a fixed number of updates (compiled
+  once, ahead of time, so compile time is measured apart), and a Python loop
+  over chunks updates the progress bar, appends metrics, evaluates, and
+  checkpoints. The chunk size changes nothing but how often the host looks:
+  updates past the end of training inside the last chunk are skipped by a
+  ``lax.cond`` on the (unbatched) update index, so any chunk size gives
+  bit-identical parameters and metrics, and a run resumed from any chunk
+  boundary finishes exactly like one that never stopped.
+
+Periodic greedy evaluation runs *inside* the compiled chunk, every
+``eval_every`` updates and after the last one (a ``lax.cond`` on the update
+index, so it costs nothing on the other updates): the policy of every seed on
+every item index (:mod:`wrl_jax.evaluation`). Its per-seed results become
+``eval_*`` metrics, and the first update at which a seed delivers every item at
+the BFS optimum gives that seed's *convergence step*.
+
+Metric aggregation over a log group of ``log_every`` updates: episode sums
+(``episodes``, ``delivered``, ``return_sum``, ``length_sum`` and any key ending in
+``_sum``) are added, ``eval_*`` keys take the group's last evaluation, and every
+other metric is averaged. Derived per row: ``mean_return``, ``delivery_rate``
+and ``mean_length`` of the training episodes that ended in the group.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import signal
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from wrl_jax import checkpoint, evaluation, metrics_io
+from wrl_jax.agents.base import Algorithm, EpisodeSums
+
+SUM_METRICS = frozenset(f.name for f in dataclasses.fields(EpisodeSums))
+"""Metrics that are sums over episodes; a log group adds them (so do keys ending in ``_sum``)."""
+
+
+# ------------------------------------------------------------ PureJaxRL shape
+def make_train(algo: Algorithm, num_updates: int | None = None) -> Callable[..., tuple[Any, dict]]:
+    """``train(key, hyper=None, env_params=None) -> (runner, metrics)`` for one seed.
+
+    ``init`` then ``lax.scan`` of ``update`` over ``num_updates`` updates (the
+    algorithm's full run by default). ``metrics`` leaves have a leading update
+    axis. Pure: ``jax.jit`` it, or ``jax.vmap`` it over keys (:func:`make_train_seeds`)
+    and over traced hyperparameters for a sweep.
+    """
+    num_updates = algo.num_updates if num_updates is None else int(num_updates)
+
+    def train(key: jax.Array, hyper: Any = None, env_params: Any = None):
+        runner = algo.init(key, hyper, env_params)
+        return jax.lax.scan(algo.update, runner, jnp.arange(num_updates, dtype=jnp.int32))
+
+    return train
+
+
+def make_train_seeds(algo: Algorithm, num_updates: int | None = None) -> Callable[[jax.Array], tuple[Any, dict]]:
+    """:func:`make_train` ``vmap``-ped over a batch of keys (one per seed); the update index stays unbatched."""
+    return jax.vmap(make_train(algo, num_updates))
+
+
+def seed_keys(seeds: Sequence[int]) -> jax.Array:
+    """One PRNG key per seed value: seed ``s`` gets ``PRNGKey(s)`` whatever batch it trains in."""
+    if len(seeds) == 0:
+        raise ValueError("at least one seed is needed")
+    return jnp.stack([jax.random.PRNGKey(int(s)) for s in seeds])
+
+
+# ------------------------------------------------------------- loop settings
+@dataclasses.dataclass(frozen=True)
+class LoopConfig:
+    """How the host drives the compiled updates. ``None`` picks a value from the run length.
+
+    Attributes:
+        chunk_updates: updates per compiled call (a multiple of ``log_every``);
+            default about 1/20 of the run. Changes nothing in the results.
+        eval_every: greedy evaluation every this many updates (and after the
+            last); ``0`` disables it. Default: about 50 evaluations per run.
+        log_every: updates aggregated into one metrics row per seed; default
+            so that a run writes at most about 500 rows per seed.
+        checkpoint_every: chunks between checkpoints (when writing to a directory).
+        progress: show a tqdm progress bar.
+    """
+
+    chunk_updates: int | None = None
+    eval_every: int | None = None
+    log_every: int | None = None
+    checkpoint_every: int = 1
+    progress: bool = True
+
+    def resolve(self, num_updates: int) -> "LoopConfig":
+        """Concrete values for a run of ``num_updates`` updates; raises ``ValueError`` on bad ones."""
+        for name in ("chunk_updates", "log_every"):
+            value = getattr(self, name)
+            if value is not None and int(value) < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value}")
+        if self.eval_every is not None and int(self.eval_every) < 0:
+            raise ValueError(f"eval_every must be >= 0 (0 disables evaluation), got {self.eval_every}")
+        if int(self.checkpoint_every) < 1:
+            raise ValueError(f"checkpoint_every must be a positive integer, got {self.checkpoint_every}")
+        log_every = self.log_every if self.log_every is not None else max(1, math.ceil(num_updates / 500))
+        eval_every = self.eval_every if self.eval_every is not None else max(1, math.ceil(num_updates / 50))
+        chunk = self.chunk_updates
+        if chunk is None:
+            chunk = max(1, math.ceil(num_updates / 20))
+            chunk = log_every * math.ceil(chunk / log_every)
+        if chunk % log_every:
+            raise ValueError(
+                f"chunk_updates={chunk} must be a multiple of log_every={log_every} "
+                "(a metrics row never straddles two chunks)"
+            )
+        return dataclasses.replace(
+            self, chunk_updates=int(chunk), eval_every=int(eval_every), log_every=int(log_every)
+        )
+
+
+# -------------------------------------------------------------------- Trainer
+@struct.dataclass
+class LatestEval:
+    """The most recent in-training evaluation: after ``update`` updates (0: none yet)."""
+
+    update: jax.Array
+    episodes: evaluation.EpisodeEval
+
+
+class Trainer:
+    """A batch of seeds of one algorithm, trained chunk by chunk.
+
+    Args:
+        algo: the algorithm (one seed's ``init``/``update``).
+        seeds: seed values, one runner each (repeats are allowed, e.g. the same
+            seed at several sweep points).
+        loop: chunking, evaluation and logging settings.
+    """
+
+    def __init__(self, algo: Algorithm, seeds: Sequence[int], loop: LoopConfig | None = None):
+        self.algo = algo
+        self.seeds = [int(s) for s in seeds]
+        if not self.seeds:
+            raise ValueError("at least one seed is needed")
+        self.num_updates = int(algo.num_updates)
+        if self.num_updates < 1:
+            raise ValueError(f"{algo.name}: the run has no update (num_updates={self.num_updates})")
+        self.loop = (loop or LoopConfig()).resolve(self.num_updates)
+        self.steps_per_update = int(algo.steps_per_update)
+        self._chunk_jit = jax.jit(self._chunk)
+        self._compiled = None
+        self._eval_jit = jax.jit(self._evaluate)
+
+    # ---------------------------------------------------------------- init
+    def init(self, hyper: Any = None, env_params: Any = None) -> Any:
+        """Batched runner state, one per seed.
+
+        ``hyper`` / ``env_params``: ``None`` for the algorithm's own, or pytrees
+        whose leaves have a leading axis of ``len(seeds)`` (a sweep).
+        """
+        keys = seed_keys(self.seeds)
+        in_axes = (0, None if hyper is None else 0, None if env_params is None else 0)
+        return jax.jit(jax.vmap(self.algo.init, in_axes=in_axes))(keys, hyper, env_params)
+
+    def template(self, hyper: Any = None, env_params: Any = None) -> Any:
+        """Shapes and dtypes of :meth:`init`'s result, without computing it (for checkpoint loading)."""
+        return jax.eval_shape(self.init, hyper, env_params)
+
+    # --------------------------------------------------------- compiled chunk
+    def _evaluate(self, runners: Any) -> evaluation.EpisodeEval:
+        network_params = jax.vmap(self.algo.network_params)(runners)
+        return evaluation.evaluate_seeds(
+            self.algo.greedy_action, network_params, self.algo.env, runners.env_params, params_batched=True
+        )
+
+    def empty_eval(self, runners: Any) -> LatestEval:
+        """A :class:`LatestEval` holding no evaluation yet (``update == 0``)."""
+        shapes = jax.eval_shape(self._evaluate, runners)
+        return LatestEval(update=jnp.int32(0), episodes=jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes))
+
+    def _chunk(self, runners: Any, start: jax.Array, latest: LatestEval) -> tuple[Any, dict, LatestEval]:
+        algo, num_updates, eval_every = self.algo, self.num_updates, self.loop.eval_every
+        batched_update = jax.vmap(algo.update, in_axes=(0, None))
+
+        def nan_like(shapes):
+            return jax.tree.map(lambda s: jnp.full(s.shape, jnp.nan, s.dtype), shapes)
+
+        def evaluate(runners, index, latest):
+            episodes = self._evaluate(runners)
+            return jax.vmap(evaluation.seed_summary)(episodes), LatestEval(update=index + 1, episodes=episodes)
+
+        def active(carry, index):
+            runners, latest = carry
+            runners, metrics = batched_update(runners, index)
+            if eval_every:
+                summary_shapes = jax.eval_shape(evaluate, runners, index, latest)[0]
+                due = ((index + 1) % eval_every == 0) | (index + 1 == num_updates)
+                summary, latest = jax.lax.cond(
+                    due, evaluate, lambda r, i, l: (nan_like(summary_shapes), l), runners, index, latest
+                )
+                metrics = {**metrics, **summary}
+            return (runners, latest), metrics
+
+        metric_shapes = jax.eval_shape(active, (runners, latest), start)[1]
+
+        def body(carry, offset):
+            index = start + offset
+            return jax.lax.cond(
+                index < num_updates, active, lambda c, i: (c, nan_like(metric_shapes)), carry, index
+            )
+
+        (runners, latest), metrics = jax.lax.scan(
+            body, (runners, latest), jnp.arange(self.loop.chunk_updates, dtype=jnp.int32)
+        )
+        return runners, metrics, latest
+
+    def compile(self, runners: Any, latest: LatestEval | None = None) -> float:
+        """Compile the chunk function ahead of time for these runners; returns the seconds it took."""
+        latest = self.empty_eval(runners) if latest is None else latest
+        t0 = time.perf_counter()
+        self._compiled = self._chunk_jit.lower(runners, jnp.int32(0), latest).compile()
+        return time.perf_counter() - t0
+
+    def run_chunk(
+        self, runners: Any, start: int, latest: LatestEval | None = None
+    ) -> tuple[Any, dict[str, np.ndarray], LatestEval]:
+        """Updates ``start .. start + chunk_updates - 1`` (those before ``num_updates``).
+
+        Returns the new runners, the per-update metrics as NumPy arrays of shape
+        ``(updates run, seeds)``, and the latest full evaluation (every seed, every item).
+        """
+        if not 0 <= start < self.num_updates:
+            raise ValueError(f"start={start} is outside 0..{self.num_updates - 1}")
+        latest = self.empty_eval(runners) if latest is None else latest
+        fn = self._compiled if self._compiled is not None else self._chunk_jit
+        runners, metrics, latest = fn(runners, jnp.int32(start), latest)
+        ran = min(self.loop.chunk_updates, self.num_updates - start)
+        metrics = {k: np.asarray(v)[:ran] for k, v in jax.device_get(metrics).items()}
+        return runners, metrics, latest
+
+    # ------------------------------------------------------------- evaluation
+    def evaluate(self, runners: Any) -> evaluation.EpisodeEval:
+        """Greedy episodes of every seed on every item (leaves ``(seeds, K_max)``), compiled separately."""
+        return self._eval_jit(runners)
+
+    # --------------------------------------------------------------- metrics
+    def metric_rows(self, metrics: dict[str, np.ndarray], start: int) -> list[dict[str, Any]]:
+        """Per-update metrics of a chunk (from :meth:`run_chunk`) as one row per (log group, seed)."""
+        ran = next(iter(metrics.values())).shape[0]
+        rows = []
+        log_every = self.loop.log_every
+        for group_start in range(0, ran, log_every):
+            group = {k: v[group_start : group_start + log_every] for k, v in metrics.items()}
+            update = start + min(group_start + log_every, ran)
+            for s, seed in enumerate(self.seeds):
+                row: dict[str, Any] = {"update": update, "env_steps": update * self.steps_per_update, "seed": seed}
+                for key, values in group.items():
+                    row[key] = _aggregate(key, values[:, s].astype(np.float64))
+                episodes = row.get("episodes", math.nan)
+                row["mean_return"] = row.get("return_sum", math.nan) / episodes if episodes else math.nan
+                row["delivery_rate"] = row.get("delivered", math.nan) / episodes if episodes else math.nan
+                row["mean_length"] = row.get("length_sum", math.nan) / episodes if episodes else math.nan
+                rows.append(row)
+        return rows
+
+
+def _aggregate(key: str, values: np.ndarray) -> float:
+    if key in SUM_METRICS or key.endswith("_sum"):
+        return float(values.sum())
+    if key.startswith("eval_"):
+        present = values[~np.isnan(values)]
+        return float(present[-1]) if present.size else math.nan
+    return float(values.mean())
+
+
+# ------------------------------------------------------------- convergence
+@dataclasses.dataclass
+class Convergence:
+    """Per-seed history of the periodic evaluations' "every item at the optimum" flag.
+
+    Attributes:
+        updates: the update counts (1-based) at which an evaluation ran.
+        all_optimal: per evaluation, one flag per seed.
+    """
+
+    updates: list[int] = dataclasses.field(default_factory=list)
+    all_optimal: list[list[bool]] = dataclasses.field(default_factory=list)
+
+    def record(self, metrics: dict[str, np.ndarray], start: int) -> None:
+        flags = metrics.get("eval_all_optimal")
+        if flags is None:
+            return
+        for offset, row in enumerate(flags):
+            if not np.isnan(row).any():
+                self.updates.append(start + offset + 1)
+                self.all_optimal.append([bool(x == 1.0) for x in row])
+
+    def first_optimal_update(self, num_seeds: int) -> list[int | None]:
+        """Per seed, the first evaluated update where every item was delivered at the optimum."""
+        out: list[int | None] = [None] * num_seeds
+        for update, flags in zip(self.updates, self.all_optimal):
+            for s, ok in enumerate(flags):
+                if ok and out[s] is None:
+                    out[s] = update
+        return out
+
+    def stable_optimal_update(self, num_seeds: int) -> list[int | None]:
+        """Per seed, the first evaluated update from which every later evaluation was optimal too."""
+        out: list[int | None] = [None] * num_seeds
+        for s in range(num_seeds):
+            for update, flags in zip(reversed(self.updates), reversed(self.all_optimal)):
+                if not flags[s]:
+                    break
+                out[s] = update
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        return {"updates": self.updates, "all_optimal": self.all_optimal}
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> "Convergence":
+        return cls(list(data.get("updates", [])), [list(x) for x in data.get("all_optimal", [])])
+
+
+# ------------------------------------------------------------------ the run
+@dataclasses.dataclass
+class RunResult:
+    """What :func:`run` returns.
+
+    Attributes:
+        runners: the batched runner state after the last update run.
+        updates_done: updates completed (``num_updates`` unless stopped early).
+        finished: whether training reached ``num_updates``.
+        rows: the metric rows written by *this* call (all rows are in ``metrics.jsonl``).
+        compile_seconds: ahead-of-time compile of the chunk function (this process).
+        train_seconds: wall time of the chunks, summed over every resumed segment.
+        convergence: evaluation history (first/stable optimal update per seed).
+    """
+
+    runners: Any
+    updates_done: int
+    finished: bool
+    rows: list[dict[str, Any]]
+    compile_seconds: float
+    train_seconds: float
+    convergence: Convergence
+    metadata: dict[str, Any]
+    latest_eval: LatestEval | None = None
+
+
+def run(
+    trainer: Trainer,
+    out_dir: str | os.PathLike | None = None,
+    *,
+    metadata: dict[str, Any] | None = None,
+    resume: bool = False,
+    stop_after: int | None = None,
+    runners: Any = None,
+    describe: Callable[[list[dict[str, Any]]], str] | None = None,
+) -> RunResult:
+    """Train ``trainer``'s seeds to the end (or to ``stop_after`` updates), chunk by chunk.
+
+    Args:
+        trainer: the algorithm, seeds and loop settings.
+        out_dir: where metrics and checkpoints go; ``None`` keeps everything in memory.
+        metadata: JSON-able description of the run stored in the checkpoint
+            (algorithm, env, config...). On ``resume`` every field of it must
+            match the checkpoint's, or :class:`checkpoint.CheckpointMismatchError`
+            is raised before anything runs.
+        resume: continue from ``out_dir``'s checkpoint.
+        stop_after: stop (with a checkpoint) once this many updates are done;
+            rounded up to a chunk boundary.
+        runners: initial runners (default ``trainer.init()``); e.g. a sweep's.
+        describe: optional ``rows -> str`` for the progress bar's postfix.
+
+    Ctrl-C between or during chunks stops cleanly: the last completed chunk is
+    checkpointed and :class:`KeyboardInterrupt` is re-raised.
+    """
+    metadata = dict(metadata or {})
+    loop = trainer.loop
+    run_meta = {
+        **metadata,
+        "seeds": trainer.seeds,
+        "num_updates": trainer.num_updates,
+        "steps_per_update": trainer.steps_per_update,
+        "log_every": loop.log_every,
+        "eval_every": loop.eval_every,
+    }
+    out = Path(out_dir) if out_dir is not None else None
+    start, train_seconds, convergence = 0, 0.0, Convergence()
+    if runners is None:
+        runners = trainer.init()
+    if resume:
+        if out is None:
+            raise ValueError("resume needs an output directory holding a checkpoint")
+        runners, saved = checkpoint.load(out, jax.eval_shape(lambda: runners), expected=run_meta)
+        start = int(saved["updates_done"])
+        train_seconds = float(saved.get("train_seconds", 0.0))
+        convergence = Convergence.from_json(saved.get("convergence", {}))
+    writer = metrics_io.MetricsWriter(out, resume_after=start if resume else None) if out is not None else None
+
+    latest = trainer.empty_eval(runners)
+    compile_seconds = trainer.compile(runners, latest)
+    stop = trainer.num_updates if stop_after is None else min(trainer.num_updates, max(int(stop_after), 1))
+    all_rows: list[dict[str, Any]] = []
+    total_steps = trainer.num_updates * trainer.steps_per_update
+    bar = None
+    if loop.progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(
+            total=total_steps,
+            initial=start * trainer.steps_per_update,
+            unit="step",
+            unit_scale=True,
+            desc=f"{trainer.algo.name} x{len(trainer.seeds)} seeds",
+            dynamic_ncols=True,
+        )
+
+    def save(updates_done: int) -> None:
+        if out is None:
+            return
+        if writer is not None:
+            writer.sync()
+        checkpoint.save(
+            out,
+            runners,
+            {
+                **run_meta,
+                "updates_done": updates_done,
+                "env_steps_done": updates_done * trainer.steps_per_update,
+                "train_seconds": train_seconds,
+                "convergence": convergence.to_json(),
+            },
+        )
+
+    chunks_since_save = 0
+    updates_done = start
+    try:
+        while updates_done < stop:
+            t0 = time.perf_counter()
+            # run_chunk fetches the metrics to the host, so the chunk has finished when it returns.
+            new_runners, metrics, new_latest = trainer.run_chunk(runners, updates_done, latest)
+            elapsed = time.perf_counter() - t0
+            runners, latest = new_runners, new_latest
+            ran = next(iter(metrics.values())).shape[0]
+            train_seconds += elapsed
+            rows = trainer.metric_rows(metrics, updates_done)
+            convergence.record(metrics, updates_done)
+            updates_done += ran
+            all_rows.extend(rows)
+            if writer is not None:
+                writer.append(rows)
+            chunks_since_save += 1
+            if chunks_since_save >= loop.checkpoint_every or updates_done >= stop:
+                save(updates_done)
+                chunks_since_save = 0
+            if bar is not None:
+                bar.update(ran * trainer.steps_per_update)
+                steps_per_second = ran * trainer.steps_per_update * len(trainer.seeds) / max(elapsed, 1e-9)
+                postfix = describe(rows) if describe is not None else _describe(rows)
+                bar.set_postfix_str(f"{steps_per_second / 1e3:,.0f}k steps/s (all seeds) | {postfix}", refresh=True)
+    except KeyboardInterrupt:
+        # ``runners`` and ``updates_done`` still describe the last completed chunk.
+        if out is not None and chunks_since_save:
+            save(updates_done)
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+    return RunResult(
+        runners=runners,
+        updates_done=updates_done,
+        finished=updates_done >= trainer.num_updates,
+        rows=all_rows,
+        compile_seconds=compile_seconds,
+        train_seconds=train_seconds,
+        convergence=convergence,
+        metadata=run_meta,
+        latest_eval=latest,
+    )
+
+
+def final_evaluation(trainer: Trainer, result: RunResult) -> evaluation.EpisodeEval:
+    """Every seed on every item after training: the in-loop evaluation of the last update when
+    there is one (no extra compile), otherwise a separately compiled evaluation."""
+    latest = result.latest_eval
+    if latest is not None and int(latest.update) == result.updates_done and result.updates_done > 0:
+        return latest.episodes
+    return trainer.evaluate(result.runners)
+
+
+def _describe(rows: list[dict[str, Any]]) -> str:
+    """Progress postfix: return and delivery rate of the chunk's training episodes, last eval."""
+    episodes = sum(row.get("episodes", 0.0) for row in rows)
+    text = "no episode ended"
+    if episodes:
+        ret = sum(row.get("return_sum", 0.0) for row in rows) / episodes
+        delivered = sum(row.get("delivered", 0.0) for row in rows) / episodes
+        text = f"return {ret:+.1f} | delivered {100 * delivered:.0f}%"
+    evals = [row["eval_optimal_rate"] for row in rows if not math.isnan(row.get("eval_optimal_rate", math.nan))]
+    if evals:
+        text += f" | eval optimal {100 * float(np.mean(evals[-len(set(r['seed'] for r in rows)):])):.0f}%"
+    return text
+
+
+def install_sigterm_handler() -> None:
+    """Turn SIGTERM into ``KeyboardInterrupt`` so :func:`run` checkpoints before exiting."""
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    signal.signal(signal.SIGTERM, handler)
