@@ -76,6 +76,9 @@ DEFAULT_BATCHES = (1, 4, 16, 64, 256, 1024, 4096, 16384, 65536)
 QUICK_BATCHES = (1, 256, 65536)
 DEFAULT_KEY_IMPLS = ("threefry2x32", "philox4x32")
 RESULTS = ROOT / "bench" / "results"
+MEASURED_FILES = ("wrl_jax/env.py", "wrl_jax/types.py", "wrl_jax/layout.py", "wrl_jax/maps.py",
+                  "wrl_jax/registry.py", "wrl_jax/reference.py", "bench/env_throughput.py")
+"""The files whose code the benchmark times; uncommitted changes to them are recorded with the result."""
 
 
 # --------------------------------------------------------------------- JAX side
@@ -296,10 +299,11 @@ def machine_info() -> dict:
     try:
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
                                 text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--", "wrl_jax", "bench/env_throughput.py"],
-                               cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
-        if dirty:
-            commit += " (with uncommitted changes to wrl_jax/ or this script)"
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", *MEASURED_FILES],
+                               cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
+        changed = [path for path in dirty if path in MEASURED_FILES]
+        if changed:
+            commit += f" (uncommitted changes to {', '.join(changed)})"
     except (OSError, subprocess.CalledProcessError):
         commit = None
     return {
