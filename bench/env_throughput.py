@@ -344,8 +344,9 @@ def markdown_table(jax_rows: list[dict], ref_rows: list[dict]) -> str:
         ratio = row["steps_per_s"] / reference[row["env_name"]]
         impl = f"JAX env.step, {row['key_impl']} keys"
         impl += " (JAX default)" if row["key_impl"] == "threefry2x32" else " (caller's choice)"
+        shown = f"{ratio:,.0f}" if ratio >= 10 else f"{ratio:.1f}"
         lines.append(f"| {row['env_name']} | {impl} | {row['batch']:,} | {row['steps_per_s']:,.0f} | "
-                     f"{ratio:,.0f} | {row['compile_s']:.2f} |")
+                     f"{shown} | {row['compile_s']:.2f} |")
     return "\n".join(lines)
 
 
@@ -384,7 +385,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="target env steps per timed call when --horizon is not given (default 2**21)")
     parser.add_argument("--repeats", type=int, default=None, help="timed calls per configuration (default 7)")
     parser.add_argument("--actions", choices=("packed", "randint"), default="packed",
-                        help="how random actions are drawn (see random_actions)")
+                        help="how random actions are drawn (see draw_action_source)")
     parser.add_argument("--env-keys", choices=("split", "fold_in"), default="split",
                         help="how the per-env reset keys are made from the step's key (see per_env_keys)")
     parser.add_argument("--reference-steps", type=int, default=None,
@@ -400,18 +401,34 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="JSON output (default bench/results/env_throughput.json; the .md table beside it)")
     args = parser.parse_args(argv)
     quick = args.quick
-    args.batch_sizes = args.batch_sizes or list(QUICK_BATCHES if quick else DEFAULT_BATCHES)
-    args.steps_per_call = args.steps_per_call or (2**18 if quick else 2**21)
-    args.repeats = args.repeats or (3 if quick else 7)
-    args.reference_steps = args.reference_steps or (3000 if quick else 20000)
+    defaults = {
+        "batch_sizes": list(QUICK_BATCHES if quick else DEFAULT_BATCHES),
+        "steps_per_call": 2**18 if quick else 2**21,
+        "repeats": 3 if quick else 7,
+        "reference_steps": 3000 if quick else 20000,
+    }
+    for name, value in defaults.items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
     args.vector_sizes = args.vector_sizes if args.vector_sizes is not None else ([16] if quick else [16, 256])
     args.breakdown = (not quick) if args.breakdown is None else args.breakdown
     if args.out is None:
         args.out = RESULTS / ("env_throughput_quick.json" if quick else "env_throughput.json")
     for name in args.envs:
         wrl_jax.registry.spec(name)  # a clear error for an unknown name, before any work
-    if min(args.batch_sizes) < 1 or args.repeats < 1:
-        parser.error("batch sizes and --repeats must be positive")
+    for impl in args.key_impls:
+        try:
+            jax.random.key(0, impl=impl)
+        except (ValueError, TypeError) as error:
+            parser.error(f"unknown --key-impls entry {impl!r}: {error}")
+    positive = {"--batch-sizes": min(args.batch_sizes), "--repeats": args.repeats,
+                "--steps-per-call": args.steps_per_call, "--reference-steps": args.reference_steps,
+                "--horizon": 1 if args.horizon is None else args.horizon}
+    for flag, value in positive.items():
+        if value < 1:
+            parser.error(f"{flag} must be positive, got {value}")
+    if any(n < 1 for n in args.vector_sizes):
+        parser.error(f"--vector-sizes must be positive, got {args.vector_sizes}")
     return args
 
 
