@@ -1,0 +1,632 @@
+"""Deep Q-learning, hand-written in JAX and compiled end to end.
+
+One *update* of one seed (the unit the shared training driver ``lax.scan``s):
+
+1. ``train_freq`` vector steps of ``num_envs`` environments with
+   epsilon-greedy actions from the online Q-network; every transition goes
+   into the replay buffer with ``next_obs`` taken *before* the automatic reset
+   (``info["final_obs"]``) and only ``terminated`` stopping the bootstrap, so
+   a time-limit truncation is bootstrapped like any other step;
+2. once ``learning_starts`` transitions have been collected,
+   ``gradient_steps`` gradient steps, each on a uniform batch from the buffer,
+   towards ``r + gamma * (1 - terminated) * Q_target(s', a*)`` with
+   ``a* = argmax Q_target(s')`` (or ``argmax Q_online(s')``, Double DQN),
+   Huber or squared loss, global-norm gradient clipping and Adam;
+3. the target network is moved towards the online one (``tau = 1``: a hard
+   copy) every ``target_update_interval`` transitions.
+
+The schedules follow Stable-Baselines3's ``DQN`` so that the ``paper`` preset
+means what the study ran: ``train_freq``, ``learning_starts`` and the
+exploration schedule are counted in environment transitions, the target
+interval too. Decisions keyed on the step count (learning has started, the
+target is due) use ``lax.cond`` on the driver's unbatched ``update_index``, so
+under ``vmap`` over seeds they stay real branches and skipped work costs
+nothing.
+
+Everything a sweep may vary (learning rate, discount, epsilon schedule, tau,
+gradient clip) is a traced :class:`DQNHyper` in the runner state; what fixes
+array shapes or the program's structure (network, environments, buffer,
+batch, frequencies, loss, Double DQN) is static on :class:`DQNConfig`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from typing import Any, ClassVar, Literal
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from wrl_jax.agents.base import AlgoSpec, Algorithm, EpisodeStats, EpisodeSums, Metrics, sum_episode_sums, track_episodes
+from wrl_jax.agents.networks import MLP, mlp_forward_flops
+from wrl_jax.agents.replay import ReplayBuffer, Transition
+from wrl_jax.env import Warehouse
+from wrl_jax.types import EnvParams, EnvState
+
+LossName = Literal["huber", "mse"]
+
+
+# ---------------------------------------------------------------------- config
+@dataclasses.dataclass(frozen=True)
+class DQNConfig:
+    """Everything one DQN run needs.
+
+    Static fields fix shapes and program structure; fields marked *traced*
+    become :class:`DQNHyper` arrays in the runner state and can be swept with
+    ``vmap`` without recompiling.
+
+    Attributes:
+        total_timesteps: environment transitions per seed (all environments together).
+        num_envs: environments stepped together in one vector step.
+        hidden_sizes: widths of the Q-network's hidden layers.
+        activation: ``"relu"`` or ``"tanh"``.
+        buffer_size: replay capacity in transitions.
+        batch_size: transitions per gradient step.
+        train_freq: vector steps collected between two training phases.
+        gradient_steps: gradient steps per training phase.
+        learning_starts: transitions collected before the first gradient step
+            (before that, actions are uniformly random, as in SB3).
+        target_update_interval: transitions between two target updates.
+        double_dqn: choose the bootstrap action with the online network.
+        loss: ``"huber"`` (SB3's smooth L1, delta ``huber_delta``) or ``"mse"``.
+        adam_eps: Adam's epsilon (PyTorch's default 1e-8, what SB3's DQN uses).
+        anneal_lr: decay the learning rate linearly to 0 over the run (SB3's
+            constant rate when False).
+        learning_rate: *traced*, Adam step size.
+        gamma: *traced*, discount.
+        tau: *traced*, target update ``target <- tau * online + (1 - tau) * target``;
+            1.0 is a hard copy.
+        exploration_initial_eps / exploration_final_eps: *traced*, epsilon goes
+            linearly from the first to the second ...
+        exploration_fraction: *traced*, ... over this fraction of ``total_timesteps``.
+        max_grad_norm: *traced*, global gradient-norm clip.
+        huber_delta: *traced*, where the Huber loss turns linear.
+        reward_scale: *traced*, rewards are multiplied by it before learning (Q-values
+            are in scaled units; the greedy policy is unchanged by a positive scale).
+    """
+
+    total_timesteps: int = 500_000
+    num_envs: int = 1
+    hidden_sizes: tuple[int, ...] = (256, 256)
+    activation: str = "relu"
+    buffer_size: int = 100_000
+    batch_size: int = 128
+    train_freq: int = 4
+    gradient_steps: int = 1
+    learning_starts: int = 100
+    target_update_interval: int = 10_000
+    double_dqn: bool = False
+    loss: LossName = "huber"
+    adam_eps: float = 1e-8
+    anneal_lr: bool = False
+    # traced
+    learning_rate: float = 1e-3
+    gamma: float = 0.99
+    tau: float = 1.0
+    exploration_initial_eps: float = 1.0
+    exploration_final_eps: float = 0.02
+    exploration_fraction: float = 0.1
+    max_grad_norm: float = 10.0
+    huber_delta: float = 1.0
+    reward_scale: float = 1.0
+
+    TRACED_FIELDS: ClassVar[tuple[str, ...]] = (
+        "learning_rate",
+        "gamma",
+        "tau",
+        "exploration_initial_eps",
+        "exploration_final_eps",
+        "exploration_fraction",
+        "max_grad_norm",
+        "huber_delta",
+        "reward_scale",
+    )
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "hidden_sizes", tuple(int(w) for w in self.hidden_sizes))
+        self.validate()
+
+    # -------------------------------------------------------------- derived
+    @property
+    def steps_per_update(self) -> int:
+        """Transitions one update collects (``train_freq`` vector steps)."""
+        return self.num_envs * self.train_freq
+
+    @property
+    def num_updates(self) -> int:
+        return self.total_timesteps // self.steps_per_update
+
+    def replace(self, **changes: Any) -> "DQNConfig":
+        """A copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+    def validate(self) -> None:
+        """Raise a ``ValueError`` naming the first problem, before anything compiles."""
+        positive_ints = (
+            "total_timesteps",
+            "num_envs",
+            "buffer_size",
+            "batch_size",
+            "train_freq",
+            "gradient_steps",
+            "target_update_interval",
+        )
+        for name in positive_ints:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"DQNConfig.{name} must be a positive integer, got {value!r}")
+        if isinstance(self.learning_starts, bool) or not isinstance(self.learning_starts, int) or self.learning_starts < 0:
+            raise ValueError(f"DQNConfig.learning_starts must be a non-negative integer, got {self.learning_starts!r}")
+        if not self.hidden_sizes or any(w < 1 for w in self.hidden_sizes):
+            raise ValueError(f"DQNConfig.hidden_sizes must be positive widths, got {self.hidden_sizes!r}")
+        if self.activation not in ("relu", "tanh"):
+            raise ValueError(f"DQNConfig.activation must be 'relu' or 'tanh', got {self.activation!r}")
+        if self.loss not in ("huber", "mse"):
+            raise ValueError(f"DQNConfig.loss must be 'huber' or 'mse', got {self.loss!r}")
+        if self.buffer_size < self.num_envs:
+            raise ValueError(
+                f"DQNConfig.buffer_size ({self.buffer_size}) must hold at least one vector step "
+                f"(num_envs={self.num_envs})"
+            )
+        if self.total_timesteps < self.steps_per_update:
+            raise ValueError(
+                f"DQNConfig.total_timesteps ({self.total_timesteps}) is less than one update "
+                f"(num_envs * train_freq = {self.steps_per_update} transitions)"
+            )
+        for name in self.TRACED_FIELDS + ("adam_eps",):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"DQNConfig.{name} must be a finite number, got {value!r}")
+        check_hyper_values(
+            learning_rate=self.learning_rate,
+            gamma=self.gamma,
+            tau=self.tau,
+            exploration_initial_eps=self.exploration_initial_eps,
+            exploration_final_eps=self.exploration_final_eps,
+            exploration_fraction=self.exploration_fraction,
+            max_grad_norm=self.max_grad_norm,
+            huber_delta=self.huber_delta,
+            reward_scale=self.reward_scale,
+        )
+        if self.adam_eps <= 0:
+            raise ValueError(f"DQNConfig.adam_eps must be positive, got {self.adam_eps}")
+
+
+def check_hyper_values(**values: Any) -> None:
+    """Range checks of the traced hyperparameters (scalars or arrays of sweep points)."""
+    import numpy as np
+
+    def arr(name):
+        return np.asarray(values[name], dtype=np.float64)
+
+    def fail(name, rule):
+        raise ValueError(f"DQN hyperparameter {name} must be {rule}, got {values[name]!r}")
+
+    for name in values:
+        if not np.all(np.isfinite(arr(name))):
+            fail(name, "finite")
+    if "learning_rate" in values and np.any(arr("learning_rate") <= 0):
+        fail("learning_rate", "positive")
+    if "gamma" in values and np.any((arr("gamma") < 0) | (arr("gamma") > 1)):
+        fail("gamma", "in [0, 1]")
+    if "tau" in values and np.any((arr("tau") <= 0) | (arr("tau") > 1)):
+        fail("tau", "in (0, 1]")
+    for name in ("exploration_initial_eps", "exploration_final_eps"):
+        if name in values and np.any((arr(name) < 0) | (arr(name) > 1)):
+            fail(name, "in [0, 1]")
+    if "exploration_fraction" in values and np.any((arr("exploration_fraction") <= 0) | (arr("exploration_fraction") > 1)):
+        fail("exploration_fraction", "in (0, 1]")
+    if "max_grad_norm" in values and np.any(arr("max_grad_norm") <= 0):
+        fail("max_grad_norm", "positive")
+    if "huber_delta" in values and np.any(arr("huber_delta") <= 0):
+        fail("huber_delta", "positive")
+    if "reward_scale" in values and np.any(arr("reward_scale") <= 0):
+        fail("reward_scale", "positive")
+
+
+PAPER = DQNConfig(
+    # The study's Table 2 for DQN on 8x8, exactly:
+    learning_rate=1e-3,
+    hidden_sizes=(256, 256),
+    gamma=0.99,
+    buffer_size=100_000,
+    batch_size=128,
+    exploration_initial_eps=1.0,
+    exploration_final_eps=0.02,
+    num_envs=1,
+    total_timesteps=500_000,
+    # What the table omits, as Stable-Baselines3 2.x's DQN defaults would have it:
+    train_freq=4,
+    gradient_steps=1,
+    learning_starts=100,
+    target_update_interval=10_000,
+    tau=1.0,  # hard copy
+    exploration_fraction=0.1,
+    loss="huber",  # SB3's smooth L1 loss
+    huber_delta=1.0,
+    max_grad_norm=10.0,
+    adam_eps=1e-8,  # PyTorch Adam's default
+    activation="relu",  # SB3's QNetwork activation
+    double_dqn=False,
+    anneal_lr=False,
+    reward_scale=1.0,
+)
+"""The study's exact setting (Table 2), completed with SB3 2.x DQN defaults."""
+
+DEFAULT = DQNConfig(
+    num_envs=8,
+    train_freq=1,  # one gradient step per vector step of 8 environments
+    gradient_steps=1,
+    batch_size=128,
+    hidden_sizes=(128, 128),
+    buffer_size=50_000,
+    learning_starts=1_000,
+    target_update_interval=8,  # every update ...
+    tau=0.02,  # ... a Polyak step
+    gamma=0.8,
+    learning_rate=1e-2,
+    anneal_lr=True,
+    exploration_initial_eps=1.0,
+    exploration_final_eps=0.5,
+    exploration_fraction=0.2,
+    loss="huber",
+    max_grad_norm=10.0,
+    total_timesteps=40_000,
+)
+"""Ours, tuned for Warehouse-8x8-v0 on a 2-core CPU (docs/dqn.md has the measurements)."""
+
+PRESETS: dict[str, DQNConfig] = {"default": DEFAULT, "paper": PAPER}
+
+STUDY_TABLE3 = {
+    "Task Completion Rate": "100% (all 10 locations)",
+    "Mean Steps to Complete": "14.7 steps (converged)",
+    "Mean Episode Reward": "+356 (fully converged)",
+    "Convergence Timestep": "~180,000 steps",
+    "Obstacle Avoidance": "100% in all eval runs",
+    "Stage Switching": "100% correct behavioural switching",
+}
+"""The study's Table 3 column for DQN on 8x8, printed beside ours."""
+
+
+# ---------------------------------------------------------------------- state
+@struct.dataclass
+class DQNHyper:
+    """The traced hyperparameters of one run (float32 scalars, or batched for a sweep)."""
+
+    learning_rate: jax.Array
+    gamma: jax.Array
+    tau: jax.Array
+    exploration_initial_eps: jax.Array
+    exploration_final_eps: jax.Array
+    exploration_fraction: jax.Array
+    max_grad_norm: jax.Array
+    huber_delta: jax.Array
+    reward_scale: jax.Array
+
+    @classmethod
+    def from_config(cls, config: DQNConfig, **overrides: Any) -> "DQNHyper":
+        """The config's values, any of them overridden (scalars or arrays of sweep points)."""
+        unknown = sorted(set(overrides) - set(DQNConfig.TRACED_FIELDS))
+        if unknown:
+            raise ValueError(f"unknown DQN hyperparameter(s) {unknown}; traced ones: {list(DQNConfig.TRACED_FIELDS)}")
+        values = {name: overrides.get(name, getattr(config, name)) for name in DQNConfig.TRACED_FIELDS}
+        check_hyper_values(**values)
+        return cls(**{name: jnp.asarray(value, jnp.float32) for name, value in values.items()})
+
+
+@struct.dataclass
+class DQNRunner:
+    """All mutable state of one seed: a checkpoint of it resumes training exactly."""
+
+    params: Any  # online Q-network
+    target_params: Any
+    opt_state: Any
+    buffer: ReplayBuffer
+    env_state: EnvState  # batched over num_envs
+    obs: jax.Array  # (num_envs, obs_size)
+    episode_stats: EpisodeStats
+    key: jax.Array
+    hyper: DQNHyper
+    env_params: EnvParams
+
+
+# ------------------------------------------------------------------ algorithm
+class DQN(Algorithm[DQNRunner]):
+    """DQN for the shared training driver (one seed; the driver ``vmap``s it).
+
+    Args:
+        config: a validated :class:`DQNConfig`.
+        env: the environment (static shapes).
+        env_params: its params (the default ``init`` uses them).
+    """
+
+    name = "dqn"
+
+    def __init__(self, config: DQNConfig, env: Warehouse, env_params: EnvParams):
+        if not isinstance(config, DQNConfig):
+            raise TypeError(f"DQN needs a DQNConfig, got {type(config).__name__}")
+        super().__init__(config, env, env_params)
+        self.network = MLP(hidden_sizes=config.hidden_sizes, output_size=env.num_actions, activation=config.activation)
+        # Adam without its step size: the (traced) learning rate is applied by hand.
+        self.optimizer = optax.scale_by_adam(eps=config.adam_eps)
+
+    # ----------------------------------------------------------- contract
+    @property
+    def num_updates(self) -> int:
+        return self.config.num_updates
+
+    @property
+    def steps_per_update(self) -> int:
+        return self.config.steps_per_update
+
+    def network_params(self, runner: DQNRunner) -> Any:
+        return runner.params
+
+    def greedy_action(self, network_params: Any, obs: jax.Array) -> jax.Array:
+        return jnp.argmax(self.network.apply(network_params, obs), axis=-1).astype(jnp.int32)
+
+    def init_network(self, key: jax.Array) -> Any:
+        """Fresh Q-network parameters, initialized as PyTorch's ``nn.Linear`` (what SB3 uses).
+
+        Every kernel and bias is uniform in ``+-1/sqrt(fan_in)``. The shared
+        MLP's own initializer is orthogonal, which needs a QR decomposition per
+        layer: compiling that under ``vmap`` costs seconds on this CPU, more
+        than a whole short training run. The parameter tree is the MLP's, so
+        ``network.apply`` is unchanged.
+        """
+        shapes = jax.eval_shape(self.network.init, key, jnp.zeros((self.env.obs_size,), jnp.float32))["params"]
+        names = sorted(shapes, key=lambda name: int(name.split("_")[-1]))  # Dense_0, Dense_1, ...
+        sizes = [shapes[name][part].size for name in names for part in ("kernel", "bias")]
+        # One draw for all parameters: every random call costs compile time.
+        unit = jax.random.uniform(key, (sum(sizes),), jnp.float32, -1.0, 1.0)
+        params, offset = {}, 0
+        for name in names:
+            bound = 1.0 / math.sqrt(shapes[name]["kernel"].shape[0])
+            params[name] = {}
+            for part in ("kernel", "bias"):
+                shape = shapes[name][part].shape
+                size = math.prod(shape)
+                params[name][part] = bound * unit[offset : offset + size].reshape(shape)
+                offset += size
+        return {"params": params}
+
+    def q_values(self, network_params: Any, obs: jax.Array) -> jax.Array:
+        """Q-values of every action, ``(..., num_actions)``."""
+        return self.network.apply(network_params, obs)
+
+    def init(self, key: jax.Array, hyper: DQNHyper | None = None, env_params: EnvParams | None = None) -> DQNRunner:
+        config = self.config
+        hyper = DQNHyper.from_config(config) if hyper is None else hyper
+        env_params = self.env_params if env_params is None else env_params
+        key, net_key, reset_key = jax.random.split(key, 3)
+        items = jax.random.bits(reset_key, (config.num_envs,), jnp.uint32) % env_params.num_items.astype(jnp.uint32)
+        obs, env_state = jax.vmap(self.env.reset_to_item, in_axes=(0, None))(items.astype(jnp.int32), env_params)
+        params = self.init_network(net_key)
+        return DQNRunner(
+            params=params,
+            # A copy, not the same buffers: the target must not alias the online net.
+            target_params=jax.tree.map(jnp.copy, params),
+            opt_state=self.optimizer.init(params),
+            buffer=ReplayBuffer.empty(config.buffer_size, self.env.obs_size),
+            env_state=env_state,
+            obs=obs,
+            episode_stats=EpisodeStats.zeros(config.num_envs),
+            key=key,
+            hyper=hyper,
+            env_params=env_params,
+        )
+
+    # ------------------------------------------------------------- update
+    def epsilon(self, hyper: DQNHyper, timestep: jax.Array) -> jax.Array:
+        """Exploration rate after ``timestep`` transitions (SB3's linear schedule)."""
+        duration = hyper.exploration_fraction * self.config.total_timesteps
+        progress = jnp.minimum(timestep.astype(jnp.float32) / duration, 1.0)
+        eps = hyper.exploration_initial_eps + progress * (hyper.exploration_final_eps - hyper.exploration_initial_eps)
+        # Before learning starts, actions are uniformly random (as in SB3).
+        return jnp.where(timestep < self.config.learning_starts, 1.0, eps)
+
+    def _env_step(self, runner: DQNRunner, timestep: jax.Array) -> tuple[DQNRunner, tuple[EpisodeSums, jax.Array]]:
+        """One vector step: act epsilon-greedily, step, store the transitions."""
+        config = self.config
+        # All randomness of a vector step comes from one split and one draw:
+        # every random call site costs compile time (threefry is a large kernel).
+        key, draw_key = jax.random.split(runner.key)
+        bits = jax.random.bits(draw_key, (3, config.num_envs), jnp.uint32)
+        explore = _unit_float(bits[0]) < self.epsilon(runner.hyper, timestep)
+        random_action = (bits[1] % self.env.num_actions).astype(jnp.int32)
+        action = jnp.where(explore, random_action, self.greedy_action(runner.params, runner.obs))
+        next_item = (bits[2] % runner.env_params.num_items.astype(jnp.uint32)).astype(jnp.int32)
+        obs, env_state, reward, terminated, truncated, info = jax.vmap(self._step_and_reset, in_axes=(0, 0, 0, None))(
+            runner.env_state, action, next_item, runner.env_params
+        )
+        buffer = runner.buffer.add(
+            Transition(
+                obs=runner.obs,
+                action=action,
+                reward=reward,
+                next_obs=info["final_obs"],  # the state reached, before the auto-reset
+                terminated=terminated,  # truncation still bootstraps
+            )
+        )
+        stats, sums = track_episodes(runner.episode_stats, reward, terminated, truncated)
+        collisions = info["collision"].sum().astype(jnp.float32)
+        runner = runner.replace(key=key, buffer=buffer, env_state=env_state, obs=obs, episode_stats=stats)
+        return runner, (sums, collisions)
+
+    def _step_and_reset(
+        self, state: EnvState, action: jax.Array, next_item: jax.Array, env_params: EnvParams
+    ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, jax.Array]]:
+        """``env.step`` with the next episode's item given instead of drawn from a key.
+
+        The same transition and automatic reset as :meth:`Warehouse.step`
+        (``info["final_obs"]`` is the observation reached), built from the
+        environment's public ``step_env`` and ``reset_to_item`` so that the item
+        index comes from the vector step's single random draw.
+        """
+        obs, next_state, reward, terminated, truncated, info = self.env.step_env(state, action, env_params)
+        reset_obs, reset_state = self.env.reset_to_item(next_item, env_params)
+        done = terminated | truncated
+        next_state = jax.tree.map(lambda fresh, cont: jnp.where(done, fresh, cont), reset_state, next_state)
+        info = {**info, "final_obs": obs}
+        return jnp.where(done, reset_obs, obs), next_state, reward, terminated, truncated, info
+
+    def loss_fn(self, params: Any, target_params: Any, hyper: DQNHyper, batch: Transition) -> tuple[jax.Array, jax.Array]:
+        """Mean TD loss of a batch, and the mean Q of the actions taken."""
+        q_next_target = self.network.apply(target_params, batch.next_obs)
+        if self.config.double_dqn:
+            next_action = jnp.argmax(self.network.apply(params, batch.next_obs), axis=-1)
+        else:
+            next_action = jnp.argmax(q_next_target, axis=-1)
+        next_value = jnp.take_along_axis(q_next_target, next_action[:, None], axis=-1)[:, 0]
+        not_terminal = 1.0 - batch.terminated.astype(jnp.float32)
+        target = jax.lax.stop_gradient(hyper.reward_scale * batch.reward + hyper.gamma * not_terminal * next_value)
+        q = jnp.take_along_axis(self.network.apply(params, batch.obs), batch.action[:, None], axis=-1)[:, 0]
+        error = q - target
+        if self.config.loss == "huber":
+            loss = optax.losses.huber_loss(error, delta=hyper.huber_delta)
+        else:
+            loss = 0.5 * jnp.square(error)
+        return loss.mean(), q.mean()
+
+    def _gradient_step(
+        self, runner: DQNRunner, key: jax.Array, learning_rate: jax.Array
+    ) -> tuple[DQNRunner, tuple[jax.Array, jax.Array]]:
+        hyper = runner.hyper
+        batch = runner.buffer.sample(key, self.config.batch_size)
+        (loss, q_mean), grads = jax.value_and_grad(self.loss_fn, has_aux=True)(
+            runner.params, runner.target_params, hyper, batch
+        )
+        grad_norm = optax.tree.norm(grads)
+        scale = jnp.minimum(1.0, hyper.max_grad_norm / jnp.maximum(grad_norm, 1e-12))
+        grads = jax.tree.map(lambda g: g * scale, grads)
+        updates, opt_state = self.optimizer.update(grads, runner.opt_state, runner.params)
+        params = jax.tree.map(lambda p, u: p - learning_rate * u, runner.params, updates)
+        return runner.replace(params=params, opt_state=opt_state), (loss, q_mean)
+
+    def learning_rate(self, hyper: DQNHyper, timestep: jax.Array) -> jax.Array:
+        """Step size after ``timestep`` transitions (constant, or linearly annealed to 0)."""
+        if not self.config.anneal_lr:
+            return hyper.learning_rate
+        remaining = 1.0 - timestep.astype(jnp.float32) / self.config.total_timesteps
+        return hyper.learning_rate * jnp.maximum(remaining, 0.0)
+
+    def _train(self, runner: DQNRunner, timestep: jax.Array) -> tuple[DQNRunner, tuple[jax.Array, jax.Array]]:
+        """``gradient_steps`` gradient steps; mean loss and mean Q over them."""
+        keys = jax.random.split(runner.key, self.config.gradient_steps + 1)
+        learning_rate = self.learning_rate(runner.hyper, timestep)
+        runner, (loss, q_mean) = jax.lax.scan(
+            lambda r, k: self._gradient_step(r, k, learning_rate), runner.replace(key=keys[0]), keys[1:]
+        )
+        return runner, (loss.mean(), q_mean.mean())
+
+    def update(self, runner: DQNRunner, update_index: jax.Array) -> tuple[DQNRunner, Metrics]:
+        config = self.config
+        update_index = jnp.asarray(update_index, jnp.int32)
+        first_step = update_index * config.steps_per_update
+        timesteps = first_step + config.num_envs * jnp.arange(config.train_freq, dtype=jnp.int32)
+        runner, (sums, collisions) = jax.lax.scan(self._env_step, runner, timesteps)
+        done = first_step + config.steps_per_update  # transitions collected after this update
+
+        # SB3 trains once more than learning_starts transitions were collected.
+        learning = done > config.learning_starts
+        no_training = (jnp.zeros((), jnp.float32), jnp.zeros((), jnp.float32))
+        runner, (loss, q_mean) = jax.lax.cond(
+            learning, self._train, lambda r, t: (r, no_training), runner, first_step
+        )
+
+        # Target update every target_update_interval transitions (when a multiple is crossed).
+        interval = config.target_update_interval
+        due = (done // interval) > (first_step // interval)
+        runner = jax.lax.cond(due, self._update_target, lambda r: r, runner)
+
+        metrics = {
+            **sum_episode_sums(sums).as_metrics(),
+            "collisions_sum": collisions.sum(),  # training moves into shelves (a sum: log groups add it)
+            "loss": loss,
+            "q_mean": q_mean,
+            "epsilon": self.epsilon(runner.hyper, done - 1),
+            "learning_rate": jnp.where(learning, self.learning_rate(runner.hyper, first_step), 0.0),
+        }
+        metrics = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), metrics)
+        return runner, metrics
+
+    def _update_target(self, runner: DQNRunner) -> DQNRunner:
+        tau = runner.hyper.tau
+        target = jax.tree.map(lambda t, o: tau * o + (1.0 - tau) * t, runner.target_params, runner.params)
+        return runner.replace(target_params=target)
+
+    # --------------------------------------------------------------- cost
+    def gradient_flops_per_update(self) -> int:
+        """FLOPs of the gradient steps of one update, one seed (2 per multiply-add).
+
+        Per sampled transition: the online network's forward and backward pass
+        on ``obs`` (about 3 forward passes) and the target network's forward
+        pass on ``next_obs`` (1; Double DQN adds an online forward on
+        ``next_obs``). The study's replay ratio (batch 128 every 4 steps,
+        [256, 256]) is 52.5 MFLOP of forward+backward plus 17.5 of target
+        forward: 70 MFLOP per update.
+        """
+        forward = mlp_forward_flops(self.env.obs_size, self.config.hidden_sizes, self.env.num_actions)
+        passes = 5 if self.config.double_dqn else 4
+        return passes * forward * self.config.batch_size * self.config.gradient_steps
+
+    def flops_per_update(self) -> int:
+        """Gradient steps plus the epsilon-greedy forward pass of every collected transition."""
+        forward = mlp_forward_flops(self.env.obs_size, self.config.hidden_sizes, self.env.num_actions)
+        return self.gradient_flops_per_update() + self.config.steps_per_update * forward
+
+
+SPEC = AlgoSpec(
+    name="dqn",
+    config_cls=DQNConfig,
+    algorithm_cls=DQN,
+    presets=PRESETS,
+    default_env="Warehouse-8x8-v0",
+    default_preset="default",
+    default_num_seeds=4,
+    study=STUDY_TABLE3,
+)
+
+
+# ------------------------------------------------------------- one program
+DEFAULT_ENV = "Warehouse-8x8-v0"
+"""The study's DQN environment; what ``train_dqn.py`` trains on by default."""
+
+
+def make_algorithm(config: DQNConfig, env: Warehouse | None = None, env_params: EnvParams | None = None) -> DQN:
+    """The :class:`DQN` of ``config`` on ``env`` (default: :data:`DEFAULT_ENV`)."""
+    if env is None:
+        if env_params is not None:
+            raise ValueError("pass env together with env_params")
+        from wrl_jax.registry import make
+
+        env, env_params = make(DEFAULT_ENV)
+    elif env_params is None:
+        raise ValueError("pass env_params together with env")
+    return DQN(config, env, env_params)
+
+
+def make_train(
+    config: DQNConfig, env: Warehouse | None = None, env_params: EnvParams | None = None
+) -> Callable[..., tuple[DQNRunner, Metrics]]:
+    """``train(key) -> (runner, metrics)``: a whole run of one seed as one jittable function.
+
+    ``init`` then one ``lax.scan`` of ``update`` over every update; ``metrics``
+    has one row per update. Train many seeds in one program with
+    ``jax.jit(jax.vmap(make_train(config)))(keys)``: the update index stays
+    unbatched, so the learning-starts and target-update branches remain real
+    ``lax.cond``s under ``vmap``. ``train(key, hyper, env_params)`` also takes
+    a :class:`DQNHyper` (e.g. batched for a sweep) and environment params.
+    """
+    from wrl_jax.training import make_train as shared_make_train
+
+    return shared_make_train(make_algorithm(config, env, env_params))
+
+
+def _unit_float(bits: jax.Array) -> jax.Array:
+    """Uniform float32 in [0, 1) from uint32 words (their top 24 bits)."""
+    return (bits >> 8).astype(jnp.float32) * jnp.float32(2.0**-24)
