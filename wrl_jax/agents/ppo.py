@@ -63,7 +63,12 @@ class PPOConfig:
             per coordinate, the extra one for "picked up"), plus the carrying
             flag: the same information, in a form an MLP separates linearly.
         anneal_lr: decay the learning rate linearly to 0 over the updates.
+        anneal_ent: decay the entropy coefficient linearly to 0 over the updates
+            (explore early, sharpen the policy whose argmax is evaluated late).
         normalize_advantages: standardize advantages within each minibatch.
+        bootstrap_truncated: bootstrap a time-limit truncation from the value of
+            the state it reached (correct); ``False`` treats it as termination
+            (the common bug, kept to show the difference).
 
     Traced (vmappable, :class:`PPOHyper`):
         learning_rate, gamma, gae_lambda, clip_eps, ent_coef, vf_coef, max_grad_norm, reward_scale.
@@ -75,15 +80,17 @@ class PPOConfig:
     update_epochs: int = 4
     hidden_sizes: tuple[int, ...] = (64, 64)
     activation: str = "tanh"
-    obs_encoding: str = "raw"
-    total_timesteps: int = 200_000
+    obs_encoding: str = "onehot"
+    total_timesteps: int = 300_000
     anneal_lr: bool = True
+    anneal_ent: bool = True
     normalize_advantages: bool = True
-    learning_rate: float = 2.5e-3
-    gamma: float = 0.99
-    gae_lambda: float = 0.95
+    bootstrap_truncated: bool = True
+    learning_rate: float = 0.01
+    gamma: float = 0.95
+    gae_lambda: float = 0.6
     clip_eps: float = 0.2
-    ent_coef: float = 0.01
+    ent_coef: float = 0.2
     vf_coef: float = 0.5
     max_grad_norm: float = 0.5
     reward_scale: float = 0.01
@@ -313,12 +320,13 @@ class PPO(Algorithm[PPORunner]):
         values, next_values = both_values[: cfg.num_steps], both_values[cfg.num_steps :]
 
         # 3. GAE, truncation bootstrapped, the trace cut at every episode end
+        done = traj.terminated | traj.truncated
         advantages = gae(
             traj.reward * hyper.reward_scale,
             values,
             next_values,
-            traj.terminated,
-            traj.terminated | traj.truncated,
+            traj.terminated if cfg.bootstrap_truncated else done,
+            done,
             hyper.gamma,
             hyper.gae_lambda,
         )
@@ -333,9 +341,10 @@ class PPO(Algorithm[PPORunner]):
             "return": returns,
         }
         batch = jax.tree.map(lambda x: x.reshape((cfg.steps_per_update,) + x.shape[2:]), batch)
-        learning_rate = hyper.learning_rate
-        if cfg.anneal_lr:
-            learning_rate = learning_rate * (1.0 - update_index.astype(jnp.float32) / cfg.num_updates)
+        remaining = 1.0 - update_index.astype(jnp.float32) / cfg.num_updates  # 1 at the first update
+        learning_rate = hyper.learning_rate * remaining if cfg.anneal_lr else hyper.learning_rate
+        ent_coef = hyper.ent_coef * remaining if cfg.anneal_ent else hyper.ent_coef
+        hyper = hyper.replace(ent_coef=ent_coef)
 
         # A random permutation of the batch per epoch: argsort of random bits.
         orders = jnp.argsort(jax.random.bits(k_order, (cfg.update_epochs, cfg.steps_per_update)), axis=-1)
@@ -363,6 +372,7 @@ class PPO(Algorithm[PPORunner]):
             **sum_episode_sums(sums).as_metrics(),
             **jax.tree.map(jnp.mean, loss_stats),
             "learning_rate": learning_rate,
+            "ent_coef": ent_coef,
             "explained_variance": explained,
         }
         metrics = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), metrics)
@@ -560,7 +570,9 @@ PAPER = PPOConfig(
     vf_coef=0.5,
     max_grad_norm=0.5,
     activation="tanh",  # SB3 MlpPolicy's activation_fn
+    obs_encoding="raw",  # the 7 observation values straight into the MLP
     anneal_lr=False,  # SB3's constant learning rate
+    anneal_ent=False,  # and constant entropy coefficient
     normalize_advantages=True,  # SB3 normalizes per minibatch
     reward_scale=1.0,  # SB3 without VecNormalize sees the raw rewards
 )

@@ -1,0 +1,202 @@
+"""The shared training driver: chunking, exact resume, evaluation, convergence bookkeeping."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import wrl_jax
+from wrl_jax import checkpoint, evaluation, metrics_io, routes, training
+from wrl_jax.agents.ppo import PPO, PPOConfig
+from wrl_jax.layout import MOVES
+
+# A tiny PPO (compiles in seconds, runs in milliseconds): the driver is what is tested here.
+TINY = PPOConfig(
+    num_envs=8, num_steps=16, num_minibatches=2, update_epochs=2, hidden_sizes=(16,), total_timesteps=8 * 16 * 7
+)
+SEEDS = [3, 4]
+
+
+def leaves_equal(a, b) -> bool:
+    la, lb = jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)
+    return len(la) == len(lb) and all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(la, lb))
+
+
+def rows_equal(a, b) -> bool:
+    """Metric rows equal value for value, NaN equal to NaN."""
+    return len(a) == len(b) and all(
+        x.keys() == y.keys()
+        and np.array_equal(np.array(list(x.values()), float), np.array(list(y.values()), float), equal_nan=True)
+        for x, y in zip(a, b)
+    )
+
+
+@pytest.fixture(scope="module")
+def algo():
+    env, params = wrl_jax.make("Warehouse-8x8-v0")
+    return PPO(TINY, env, params)
+
+
+@pytest.fixture(scope="module")
+def reference(algo):
+    """An uninterrupted run in one chunk, evaluating every 3 updates."""
+    trainer = training.Trainer(algo, SEEDS, training.LoopConfig(chunk_updates=7, eval_every=3, progress=False))
+    return trainer, training.run(trainer)
+
+
+def test_chunk_size_does_not_change_results(algo, reference):
+    _, ref = reference
+    trainer = training.Trainer(algo, SEEDS, training.LoopConfig(chunk_updates=3, eval_every=3, progress=False))
+    result = training.run(trainer)
+    assert result.updates_done == ref.updates_done == 7
+    assert leaves_equal(result.runners, ref.runners)
+    assert rows_equal(result.rows, ref.rows)
+    assert result.convergence.to_json() == ref.convergence.to_json()
+
+
+def test_make_train_matches_the_chunked_driver(algo, reference):
+    _, ref = reference
+    runner, metrics = jax.jit(training.make_train_seeds(algo))(training.seed_keys(SEEDS))
+    assert leaves_equal(runner, ref.runners)
+    assert metrics["episodes"].shape == (len(SEEDS), TINY.num_updates)
+
+
+def test_exact_resume_from_a_chunk_boundary(algo, reference, tmp_path):
+    _, ref = reference
+    trainer = training.Trainer(algo, SEEDS, training.LoopConfig(chunk_updates=2, eval_every=3, progress=False))
+    meta = {"algo": "ppo", "config": {"note": "test"}}
+    first = training.run(trainer, tmp_path, metadata=meta, stop_after=3)
+    assert first.updates_done == 4 and not first.finished  # rounded up to the chunk boundary
+    # Simulate a crash after the checkpoint: rows beyond it must be dropped on resume.
+    with open(tmp_path / metrics_io.JSONL_NAME, "a") as f:
+        f.write('{"update": 99, "env_steps": 0, "seed": 3}\n{"upd')
+    resumed = training.run(trainer, tmp_path, metadata=meta, resume=True)
+    assert resumed.finished and resumed.updates_done == 7
+    assert leaves_equal(resumed.runners, ref.runners)
+    rows = metrics_io.read_jsonl(tmp_path / metrics_io.JSONL_NAME)
+    assert len(rows) == 7 * len(SEEDS)  # no duplicate, no stray row
+    assert rows_equal(rows, ref.rows)  # JSON round trip of float64 values is exact
+    csv_lines = (tmp_path / metrics_io.CSV_NAME).read_text().splitlines()
+    assert len(csv_lines) == 1 + 7 * len(SEEDS)
+    assert resumed.convergence.to_json() == ref.convergence.to_json()
+    # A resume with another configuration is refused before anything runs.
+    with pytest.raises(checkpoint.CheckpointMismatchError, match="config.note"):
+        training.run(trainer, tmp_path, metadata={**meta, "config": {"note": "other"}}, resume=True)
+
+
+def test_seeds_differ_and_runs_repeat_bit_for_bit(algo, reference):
+    trainer, ref = reference
+    params = np.asarray(ref.runners.params)
+    assert not np.array_equal(params[0], params[1])
+    again = training.run(trainer)
+    assert leaves_equal(again.runners, ref.runners)
+
+
+def test_metric_rows_and_evaluations(algo, reference):
+    trainer, ref = reference
+    assert [row["update"] for row in ref.rows[:: len(SEEDS)]] == list(range(1, 8))
+    evaluated = [row["update"] for row in ref.rows[:: len(SEEDS)] if not np.isnan(row["eval_success_rate"])]
+    assert evaluated == [3, 6, 7]  # every 3 updates and after the last
+    assert ref.convergence.updates == [3, 6, 7]
+    for row in ref.rows:
+        if row["episodes"]:
+            assert row["mean_return"] == pytest.approx(row["return_sum"] / row["episodes"])
+    # The final in-loop evaluation is the same as a separately compiled one.
+    final = training.final_evaluation(trainer, ref)
+    assert leaves_equal(final, trainer.evaluate(ref.runners))
+
+
+def test_log_every_aggregates_sums_and_means(algo):
+    trainer = training.Trainer(algo, [0], training.LoopConfig(chunk_updates=4, log_every=2, eval_every=0, progress=False))
+    runners = trainer.init()
+    _, metrics, _ = trainer.run_chunk(runners, 0)
+    rows = trainer.metric_rows(metrics, 0)
+    assert [row["update"] for row in rows] == [2, 4]
+    assert rows[0]["episodes"] == pytest.approx(metrics["episodes"][:2, 0].sum())
+    assert rows[1]["loss"] == pytest.approx(metrics["loss"][2:4, 0].mean())
+
+
+def test_loop_config_validation():
+    with pytest.raises(ValueError, match="multiple of log_every"):
+        training.LoopConfig(chunk_updates=3, log_every=2).resolve(10)
+    with pytest.raises(ValueError, match="chunk_updates"):
+        training.LoopConfig(chunk_updates=0).resolve(10)
+    with pytest.raises(ValueError, match="eval_every"):
+        training.LoopConfig(eval_every=-1).resolve(10)
+    loop = training.LoopConfig().resolve(1000)
+    assert loop.log_every == 2 and loop.chunk_updates % loop.log_every == 0 and loop.eval_every == 20
+
+
+def test_convergence_first_and_stable():
+    conv = training.Convergence()
+    flags = np.array([[0, 1], [1, 1], [0, 1], [1, 1]], dtype=np.float32)
+    conv.record({"eval_all_optimal": flags}, start=0)
+    assert conv.updates == [1, 2, 3, 4]
+    assert conv.first_optimal_update(2) == [2, 1]
+    assert conv.stable_optimal_update(2) == [4, 1]
+    assert training.Convergence.from_json(conv.to_json()) == conv
+
+
+# ----------------------------------------------------------------- evaluation
+def oracle_greedy(env):
+    """A policy that reads the observation and follows BFS: every item at the optimum."""
+
+    def act(shelves, obs):
+        cells = jnp.round(obs * (env.size - 1)).astype(jnp.int32)
+        target = jnp.where(obs[6] > 0.5, cells[2:4], cells[4:6])
+        dist = routes.distance_map(shelves, target)
+        neighbours = cells[0:2][None, :] + jnp.asarray(MOVES)
+        inside = jnp.all((neighbours >= 0) & (neighbours < env.size), axis=-1)
+        clipped = jnp.clip(neighbours, 0, env.size - 1)
+        return jnp.argmin(jnp.where(inside, dist[clipped[:, 0], clipped[:, 1]], routes.UNREACHABLE)).astype(jnp.int32)
+
+    return act
+
+
+@pytest.mark.parametrize("name, optimum", [("Warehouse-8x8-v0", 14.0), ("Warehouse-12x12-v0", 22.0)])
+def test_evaluation_of_an_optimal_policy(name, optimum):
+    env, params = wrl_jax.make(name)
+    result = jax.jit(lambda p: evaluation.evaluate_policy(oracle_greedy(env), p.shelves, env, p))(params)
+    summary = evaluation.summarize(jax.tree.map(lambda x: x[None], result), seeds=[7])
+    assert summary["success_rate"] == 1.0 and summary["optimal_rate"] == 1.0 and summary["all_seeds_optimal"]
+    assert summary["mean_steps"] == optimum == summary["optimal_mean_steps"]
+    assert summary["collision_free_rate"] == 1.0 and summary["stage_switch_rate"] == 1.0
+    assert len(summary["rows"]) == int(params.num_items)
+    scalars = evaluation.seed_summary(result)
+    assert float(scalars["eval_all_optimal"]) == 1.0
+    table = evaluation.format_table3(summary, "oracle", [1000])
+    assert "100.0%" in table and f"{optimum:.2f}" in table
+
+
+def test_evaluation_of_bad_policies():
+    env, params = wrl_jax.make("Warehouse-8x8-v0", max_steps=20)
+    # Always "right" from (0, 0): picks up item 0 at (0, 6), reaches (0, 7) and bumps the wall 13 times.
+    right = evaluation.evaluate_policy(lambda _, obs: jnp.int32(3), None, env, params)
+    assert not bool(right.delivered.any())
+    assert (np.asarray(right.steps) == 20).all()
+    assert int(right.pickup_step[0]) == 6 and int(right.wall_bumps[0]) == 13
+    assert (np.asarray(right.pickup_step[1:]) == -1).all()
+    # Always "down" from (0, 0) then stuck at (7, 0): item 5 at (4, 0) on the way.
+    down = evaluation.evaluate_policy(lambda _, obs: jnp.int32(1), None, env, params)
+    assert int(down.pickup_step[5]) == 4
+    summary = evaluation.summarize(jax.tree.map(lambda x: x[None], down))
+    assert summary["success_rate"] == 0.0 and summary["mean_steps"] is None
+    assert summary["stage_switch_rate"] == 0.0
+
+
+def test_evaluation_counts_collisions():
+    # Item 1 of 8x8 sits at (1, 3) above the shelf row (2, 1..3): "down" from (1, 3) collides.
+    env, params = wrl_jax.make("Warehouse-8x8-v0", max_steps=12)
+
+    def policy(_, obs):
+        carrying = obs[6] > 0.5
+        row = jnp.round(obs[0] * 7)
+        return jnp.where(carrying, jnp.int32(1), jnp.where(row < 1, jnp.int32(1), jnp.int32(3)))
+
+    result = evaluation.evaluate_policy(policy, None, env, params)
+    # item 1: down to (1, 0), right to (1, 3) picks it up at step 4, then down into the shelf until truncation.
+    assert int(result.pickup_step[1]) == 4
+    assert int(result.collisions[1]) == 12 - 4
+    assert float(evaluation.seed_summary(result)["eval_collision_free_rate"]) < 1.0
