@@ -209,10 +209,15 @@ def load(path: str | os.PathLike, template: Any, expected: dict[str, Any] | None
     for name, like in template_leaves.items():
         value = np.asarray(stored[name])
         if _is_key(like):
-            want_shape = tuple(like.shape) + tuple(jax.random.key_data(jax.random.key(0)).shape)
-            if value.shape != want_shape:
-                raise CheckpointError(f"leaf {name}: stored key data shape {value.shape}, expected {want_shape}")
-            restored[name] = jax.random.wrap_key_data(jnp.asarray(value), impl=jax.random.key_impl(like))
+            impl = jax.random.key_impl(like) if isinstance(like, jax.Array) else like.dtype._impl
+            try:
+                key = jax.random.wrap_key_data(jnp.asarray(value), impl=impl)
+            except (TypeError, ValueError) as exc:
+                raise CheckpointError(f"leaf {name}: stored key data {value.dtype}{list(value.shape)} is not a key "
+                                      f"of this run's kind: {exc}") from exc
+            if key.shape != tuple(like.shape):
+                raise CheckpointError(f"leaf {name}: checkpoint has {key.shape} keys, this run expects {like.shape}")
+            restored[name] = key
             continue
         if tuple(value.shape) != tuple(like.shape) or value.dtype != np.dtype(like.dtype):
             raise CheckpointError(

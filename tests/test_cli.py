@@ -1,0 +1,125 @@
+"""The shared command line: a tiny training run end to end, resume, evaluation command, bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from wrl_jax import checkpoint, cli, metrics_io
+
+REPO = Path(__file__).resolve().parent.parent
+TINY = [
+    "--env", "Warehouse-8x8-v0", "--num-seeds", "2", "--seed", "5", "--total-timesteps", "768",
+    "--num-envs", "8", "--num-steps", "16", "--num-minibatches", "2", "--update-epochs", "1",
+    "--hidden-sizes", "16", "--chunk-updates", "2", "--eval-every", "2", "--no-progress",
+]  # fmt: skip
+SUMMARY_FIELDS = {
+    "algo", "env", "num_seeds", "total_timesteps", "compile_seconds", "train_seconds", "env_steps_per_second", "eval",
+}  # fmt: skip
+EVAL_FIELDS = {"success_rate", "mean_steps", "optimal_mean_steps", "collision_free_rate", "mean_return", "rows"}
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    assert cli.main("ppo", [*TINY, "--out", str(out)]) == 0
+    return out
+
+
+def test_a_run_writes_every_output(finished_run, capsys):
+    out = finished_run
+    for name in ("summary.json", "metrics.jsonl", "metrics.csv", "learning_curve.png", "checkpoint.msgpack",
+                 "evaluation.md", "config.json"):
+        assert (out / name).exists(), name
+    summary = json.loads((out / "summary.json").read_text())
+    assert SUMMARY_FIELDS <= summary.keys() and EVAL_FIELDS <= summary["eval"].keys()
+    assert summary["algo"] == "ppo" and summary["env"] == "Warehouse-8x8-v0" and summary["num_seeds"] == 2
+    assert summary["seeds"] == [5, 6] and summary["finished"] and summary["updates_done"] == 6
+    assert summary["env_steps_per_second"] > 0 and summary["compile_seconds"] > 0
+    assert summary["eval"]["optimal_mean_steps"] == 14.0
+    rows = summary["eval"]["rows"]
+    assert len(rows) == 2 * 10 and {r["seed"] for r in rows} == {5, 6}
+    assert {"delivered", "steps", "optimal_steps", "return", "collisions", "stage_switch"} <= rows[0].keys()
+    assert len(summary["convergence"]["first_optimal_step"]) == 2
+    assert len(metrics_io.read_jsonl(out)) == 6 * 2
+    assert "| Task Completion Rate |" in (out / "evaluation.md").read_text()
+
+
+def test_resume_continues_exactly(finished_run, tmp_path):
+    out = tmp_path / "split"
+    assert cli.main("ppo", [*TINY, "--out", str(out), "--stop-after", "2"]) == 0
+    assert not json.loads((out / "summary.json").read_text())["finished"]
+    # Only --resume --out: everything else comes from the checkpoint; a smaller chunk changes nothing.
+    assert cli.main("ppo", ["--resume", "--out", str(out), "--no-progress", "--chunk-updates", "1"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["finished"] and summary["updates_done"] == 6
+    a = checkpoint.serialization.msgpack_restore((finished_run / "checkpoint.msgpack").read_bytes())["leaves"]
+    b = checkpoint.serialization.msgpack_restore((out / "checkpoint.msgpack").read_bytes())["leaves"]
+    assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+    assert (finished_run / "metrics.csv").read_text() == (out / "metrics.csv").read_text()
+
+
+def test_evaluation_command_loads_the_checkpoint(finished_run, tmp_path):
+    result = tmp_path / "eval.json"
+    code = subprocess.run(
+        [sys.executable, "-m", "wrl_jax.evaluate", "--run", str(finished_run), "--json", str(result), "--items"],
+        cwd=REPO, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert code.returncode == 0, code.stderr
+    assert "| Task Completion Rate |" in code.stdout and "| item |" in code.stdout
+    evaluated = json.loads(result.read_text())
+    trained = json.loads((finished_run / "summary.json").read_text())["eval"]
+    assert evaluated["rows"] == trained["rows"] and evaluated["success_rate"] == trained["success_rate"]
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--num-minibatches", "7"], "not divisible into num_minibatches=7"),
+        (["--preset", "nope"], "unknown ppo preset 'nope'"),
+        (["--env", "Warehouse-9x9-v0"], "unknown environment"),
+        (["--num-seeds", "0"], "--num-seeds must be at least 1"),
+        (["--gamma", "2"], "gamma must be in"),
+        (["--resume"], "no checkpoint at"),
+        (["--eval-every", "-1"], "eval_every"),
+    ],
+)
+def test_bad_commands_fail_clearly_before_compiling(argv, message, capsys, tmp_path):
+    assert cli.main("ppo", [*TINY, "--out", str(tmp_path / "x"), *argv]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_resume_needs_an_output_directory(capsys):
+    assert cli.main("ppo", ["--resume"]) == 2
+    assert "--resume needs --out" in capsys.readouterr().err
+
+
+def test_resume_refuses_changed_settings_and_overwrite_is_explicit(finished_run, capsys):
+    assert cli.main("ppo", ["--resume", "--out", str(finished_run), "--learning-rate", "0.5", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "config.learning_rate" in err
+    assert cli.main("ppo", [*TINY, "--out", str(finished_run)]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+
+
+def test_config_round_trip_through_json():
+    from wrl_jax.agents import ppo
+
+    data = cli.config_to_dict(ppo.PAPER)
+    assert data["hidden_sizes"] == [256, 256]
+    assert cli.config_from_dict(ppo.PPOConfig, data) == ppo.PAPER
+    with pytest.raises(ValueError, match="no field"):
+        cli.config_from_dict(ppo.PPOConfig, {**data, "bogus": 1})
+
+
+def test_train_ppo_script_help():
+    out = subprocess.run([sys.executable, "train_ppo.py", "--help"], cwd=REPO, capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0
+    for flag in ("--env", "--preset", "--num-seeds", "--total-timesteps", "--learning-rate", "--out", "--resume"):
+        assert flag in out.stdout

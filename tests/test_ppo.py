@@ -1,0 +1,183 @@
+"""PPO: learning, truncation bootstrapping, determinism, presets, config validation, pieces."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import wrl_jax
+from wrl_jax import evaluation, training
+from wrl_jax.agents import ppo
+from wrl_jax.agents.networks import MLP
+from wrl_jax.agents.ppo import PPO, PPOConfig
+
+
+@pytest.mark.slow
+def test_learns_8x8_to_every_item_at_the_optimum():
+    """Two seeds of a small PPO deliver all 10 items of 8x8, at the BFS optimum (14.0 steps)."""
+    env, params = wrl_jax.make("Warehouse-8x8-v0")
+    config = dataclasses.replace(ppo.DEFAULT, num_envs=16, hidden_sizes=(32, 32), total_timesteps=40_960)
+    trainer = training.Trainer(PPO(config, env, params), [0, 1], training.LoopConfig(eval_every=0, progress=False))
+    result = training.run(trainer)
+    summary = evaluation.summarize(training.final_evaluation(trainer, result), trainer.seeds)
+    assert summary["success_rate"] == 1.0
+    assert summary["mean_steps"] == 14.0 and summary["optimal_rate"] == 1.0
+    assert summary["collision_free_rate"] == 1.0 and summary["stage_switch_rate"] == 1.0
+    last = result.rows[-2:]
+    assert all(row["delivery_rate"] == 1.0 for row in last)
+
+
+# A map built for the truncation test: the item is 13 steps away, episodes are cut after
+# 4, there are no shelves and no shaping, so every reward is the step penalty -0.5. An
+# episode never ends on its own: the true value of every state is -0.5 / (1 - gamma) = -5
+# at gamma 0.9. Treating the time limit as termination teaches the critic the 4-step
+# sum instead (-1.7 at the first step down to -0.5 at the last).
+TRUNCATION_MAP = """
+S . . . . . . .
+. . . . . . . .
+. . . . . . . .
+. . . . . . . .
+. . . . . . . .
+. . . . . . . .
+. . . . . . . 0
+. . . . . . . G
+"""
+
+
+def _critic_at_start(bootstrap: bool) -> float:
+    env, params = wrl_jax.make_from_layout(TRUNCATION_MAP, max_steps=4, shaping_coef=0.0)
+    config = PPOConfig(
+        num_envs=16,
+        num_steps=8,
+        num_minibatches=2,
+        update_epochs=4,
+        hidden_sizes=(16,),
+        obs_encoding="raw",
+        total_timesteps=16 * 8 * 60,
+        learning_rate=3e-3,
+        anneal_lr=False,
+        anneal_ent=False,
+        gamma=0.9,
+        gae_lambda=0.9,
+        ent_coef=0.0,
+        reward_scale=1.0,
+        max_grad_norm=10.0,
+        bootstrap_truncated=bootstrap,
+    )
+    algo = PPO(config, env, params)
+    runner, _ = jax.jit(training.make_train(algo))(jax.random.PRNGKey(0))
+    obs, _ = env.reset_to_item(0, params)
+    return float(algo.forward(algo.unflatten(runner.params)["critic"], obs)[0])
+
+
+@pytest.mark.slow
+def test_truncation_is_bootstrapped_not_terminated():
+    with_bootstrap = _critic_at_start(bootstrap=True)
+    as_termination = _critic_at_start(bootstrap=False)
+    assert with_bootstrap == pytest.approx(-0.5 / (1 - 0.9), abs=0.3)
+    # The start state is always seen at t=0, where the 4-step sum is -0.5 (1 - 0.9^4) / 0.1.
+    assert as_termination == pytest.approx(-0.5 * (1 - 0.9**4) / 0.1, abs=0.3)
+
+
+def test_gae_bootstraps_truncation_and_cuts_the_trace():
+    gamma, lam = 0.9, 0.5
+    reward = jnp.array([[1.0], [1.0], [1.0]])
+    value = jnp.array([[0.5], [0.5], [0.5]])
+    next_value = jnp.array([[0.5], [7.0], [0.5]])  # step 1 reached a state worth 7, then an auto-reset
+    truncated = jnp.array([[False], [True], [False]])
+    terminated = jnp.zeros_like(truncated)
+    adv = ppo.gae(reward, value, next_value, terminated, truncated | terminated, gamma, lam)
+    delta = np.array([1 + 0.9 * 0.5 - 0.5, 1 + 0.9 * 7.0 - 0.5, 1 + 0.9 * 0.5 - 0.5])
+    expected = [delta[0] + gamma * lam * delta[1], delta[1], delta[2]]  # trace cut after step 1
+    np.testing.assert_allclose(np.asarray(adv)[:, 0], expected, rtol=1e-6)
+    # Treating the truncation as termination drops the 7.0.
+    adv_term = ppo.gae(reward, value, next_value, truncated, truncated, gamma, lam)
+    assert float(adv_term[1, 0]) == pytest.approx(1.0 - 0.5)
+
+
+def test_seeds_differ_and_a_seed_repeats_bit_for_bit():
+    env, params = wrl_jax.make("Warehouse-8x8-v0")
+    config = PPOConfig(num_envs=8, num_steps=8, num_minibatches=2, update_epochs=1, hidden_sizes=(8,),
+                       total_timesteps=8 * 8 * 3)
+    train = jax.jit(training.make_train_seeds(PPO(config, env, params)))
+    keys = training.seed_keys([0, 1, 0])
+    first, metrics = train(keys)
+    second, metrics2 = train(keys)
+    params_a = np.asarray(first.params)
+    assert np.array_equal(params_a, np.asarray(second.params))
+    assert all(np.array_equal(metrics[k], metrics2[k]) for k in metrics)
+    assert not np.array_equal(params_a[0], params_a[1])
+    assert np.array_equal(params_a[0], params_a[2])  # same seed, same batch: same bits
+    alone, _ = jax.jit(training.make_train_seeds(PPO(config, env, params)))(training.seed_keys([1]))
+    # Alone vs in a batch the arithmetic is the same up to float rounding of batched kernels.
+    np.testing.assert_allclose(np.asarray(alone.params)[0], params_a[1], atol=1e-5)
+
+
+def test_paper_preset_is_table_2():
+    p = ppo.PRESETS["paper"]
+    assert (p.learning_rate, p.hidden_sizes, p.gamma, p.num_envs, p.num_steps) == (3e-4, (256, 256), 0.99, 8, 1024)
+    assert (p.update_epochs, p.ent_coef, p.clip_eps, p.total_timesteps) == (10, 0.02, 0.2, 600_000)
+    assert p.minibatch_size == 64  # SB3's default batch_size
+    assert (p.gae_lambda, p.vf_coef, p.max_grad_norm) == (0.95, 0.5, 0.5)
+    assert p.reward_scale == 1.0 and p.obs_encoding == "raw" and not p.anneal_lr
+    for preset in ppo.PRESETS.values():
+        preset.validate()
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"num_minibatches": 7}, "not divisible into num_minibatches=7"),
+        ({"num_envs": 0}, "num_envs must be a positive integer"),
+        ({"total_timesteps": 100}, "less than one update"),
+        ({"gamma": 1.5}, "gamma must be in"),
+        ({"learning_rate": -1.0}, "learning_rate must be > 0"),
+        ({"activation": "gelu"}, "activation must be one of"),
+        ({"obs_encoding": "pixels"}, "obs_encoding must be one of"),
+        ({"hidden_sizes": ()}, "hidden_sizes"),
+    ],
+)
+def test_invalid_configs_raise_before_compiling(change, message):
+    env, params = wrl_jax.make("Warehouse-8x8-v0")
+    with pytest.raises(ValueError, match=message):
+        PPO(dataclasses.replace(ppo.DEFAULT, **change), env, params)
+
+
+def test_forward_is_the_shared_mlp():
+    env, params = wrl_jax.make("Warehouse-12x12-v0")
+    obs = jax.vmap(lambda k: env.reset(k, params)[0])(jax.random.split(jax.random.PRNGKey(0), 16))
+    obs = obs.at[3, 4:7].set(jnp.array([-1 / 11, -1 / 11, 1.0], jnp.float32))  # a carrying observation
+    for encoding in ppo.OBS_ENCODINGS:
+        algo = PPO(dataclasses.replace(ppo.DEFAULT, obs_encoding=encoding), env, params)
+        networks = algo.unflatten(algo.init(jax.random.PRNGKey(1)).params)
+        features = ppo.encode_observation(obs, env, encoding)
+        assert features.shape[-1] == ppo.encoded_size(env, encoding)
+        for name, out in (("actor", 4), ("critic", 1)):
+            mlp = MLP(algo.config.hidden_sizes, out, algo.config.activation)
+            np.testing.assert_allclose(
+                algo.forward(networks[name], obs), mlp.apply(networks[name], features), atol=1e-5
+            )
+        assert np.array_equal(algo.unflatten(algo.flatten(networks))["actor"]["params"]["Dense_0"]["kernel"],
+                              networks["actor"]["params"]["Dense_0"]["kernel"])
+    onehot = ppo.encode_observation(obs, env, "onehot")
+    assert np.all(np.asarray(onehot[:, :78]).sum(-1) == 6)  # one 1 per coordinate
+
+
+def test_orthonormal_columns_match_householder_qr():
+    a = jax.random.normal(jax.random.PRNGKey(0), (64, 20))
+    q = np.asarray(ppo.orthonormal_columns(a), np.float64)
+    np.testing.assert_allclose(q.T @ q, np.eye(20), atol=1e-5)
+    q_ref, r_ref = np.linalg.qr(np.asarray(a, np.float64))
+    np.testing.assert_allclose(q, q_ref * np.sign(np.diag(r_ref)), atol=1e-5)
+
+
+def test_flops_per_update_counts_the_networks():
+    env, params = wrl_jax.make("Warehouse-12x12-v0")
+    p = ppo.PRESETS["paper"]
+    flops = PPO(p, env, params).flops_per_update()
+    per_net = 2 * (7 * 256 + 256 * 256)  # the two hidden layers dominate
+    assert 10 * 8192 * 3 * 2 * per_net < flops < 1.2 * 12 * 8192 * 3 * 2 * per_net
