@@ -233,3 +233,35 @@ def test_jax_bfs_agrees_with_numpy_bfs(env_and_params):
     jax_map = np.asarray(tables.to_goal)
     np.testing.assert_array_equal(np.where(reference < 0, -1, jax_map), reference)
     assert (jax_map[reference < 0] == routes.UNREACHABLE).all()
+
+
+def test_draw_item_is_exact_multiply_shift():
+    """draw_item maps one 32-bit word u to floor(u * k / 2**32), computed without 64-bit integers."""
+    from wrl_jax.env import draw_item
+
+    keys = jax.random.split(jax.random.key(11), 4096)
+    words = np.asarray(jax.vmap(lambda k: jax.random.bits(k, (), jnp.uint32))(keys)).astype(np.uint64)
+    words = np.concatenate([words, [0, 2**32 - 1, 2**31, 2**16 - 1]]).astype(np.uint64)
+    for count in (1, 2, 7, 10, 20, 62, 2**16 - 1):
+        _, params = wrl_jax.make("Warehouse-8x8-v0")
+        params = params.replace(num_items=jnp.asarray(count, jnp.int32))
+        drawn = np.asarray(jax.vmap(draw_item, in_axes=(0, None))(keys, params))
+        np.testing.assert_array_equal(drawn, (words[:4096] * count) >> 32)
+        # the edge words, through the same arithmetic on uint32 arrays
+        w = jnp.asarray(words[4096:].astype(np.uint32))
+        c = jnp.uint32(count)
+        edge = ((w >> 16) * c + (((w & 0xFFFF) * c) >> 16)) >> 16
+        np.testing.assert_array_equal(np.asarray(edge), (words[4096:] * count) >> 32)
+
+
+def test_step_to_item_pins_the_next_episode():
+    env, params = small()
+    _, state = env.reset_to_item(0, params)
+    for action in (RIGHT, RIGHT, DOWN):
+        _, state, *_ = env.step_to_item(state, action, 0, params)
+    obs, state, _, term, _, info = env.step_to_item(state, DOWN, 0, params)
+    assert bool(term) and int(state.item_index) == 0 and int(state.time) == 0
+    keyed = env.step(jax.random.key(5), state, UP, params)
+    pinned = env.step_to_item(state, UP, 0, params)
+    for a, b in zip(jax.tree.leaves(keyed), jax.tree.leaves(pinned)):
+        np.testing.assert_array_equal(a, b)  # no episode end: the key changes nothing

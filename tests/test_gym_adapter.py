@@ -257,9 +257,10 @@ def test_vector_env_equals_gymnasium_sync_vector_env():
 
 
 def test_vector_env_equals_single_envs_and_exposes_final_obs():
-    num_envs, max_steps = 4, 24
-    venv = WarehouseVectorEnv(num_envs, "Warehouse-8x8-v0", max_steps=max_steps)
-    singles = [WarehouseGymEnv("Warehouse-8x8-v0", max_steps=max_steps) for _ in range(num_envs)]
+    # A small open layout, so random drift delivers often and episodes end at different steps.
+    num_envs, max_steps, layout = 4, 12, "S . 0 .\n. . . 1\n. # . .\n2 . . G"
+    venv = WarehouseVectorEnv(num_envs, layout=layout, max_steps=max_steps)
+    singles = [WarehouseGymEnv(layout=layout, max_steps=max_steps) for _ in range(num_envs)]
     obs, info = venv.reset(seed=5)
     for i, single in enumerate(singles):
         single_obs, _ = single.reset(options={"item_index": int(info["item_index"][i])})

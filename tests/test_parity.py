@@ -231,7 +231,7 @@ def test_auto_reset_observation_is_a_reference_reset():
         assert bool(truncated) == ref_truncated == (t % 3 == 2)
         if ref_truncated:
             # The JAX key drew this item; the reference reset to it must give the same observation.
-            expected_item = int(jax.random.randint(key, (), 0, params.num_items))
+            expected_item = int(wrl_jax.env.draw_item(key, params))
             assert int(state.item_index) == expected_item
             ref_reset, _ = ref.reset(options={"item_index": expected_item})
             assert_bitwise_equal("auto-reset obs", obs, ref_reset)

@@ -24,6 +24,8 @@ from wrl_jax.layout import MOVES, Layout
 from wrl_jax.types import REWARD_DEFAULTS, EnvParams, EnvState
 
 NUM_ACTIONS = 4
+MAX_ITEMS = 2**16 - 1
+"""Item capacity bound of :func:`draw_item`'s 32-bit arithmetic (layouts allow 62 anyway)."""
 ACTION_NAMES = ("up", "down", "left", "right")
 
 StepResult = tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, jax.Array]]
@@ -45,8 +47,8 @@ class Warehouse:
     def __init__(self, size: int, max_items: int, observe_carrying: bool = True):
         if size < 2:
             raise ValueError(f"grid size must be at least 2, got {size}")
-        if max_items < 1:
-            raise ValueError(f"max_items must be at least 1, got {max_items}")
+        if not 1 <= max_items <= MAX_ITEMS:
+            raise ValueError(f"max_items must be in 1..{MAX_ITEMS}, got {max_items}")
         self.size = int(size)
         self.max_items = int(max_items)
         self.observe_carrying = bool(observe_carrying)
@@ -92,11 +94,22 @@ class Warehouse:
 
         Returns ``(obs, state, reward, terminated, truncated, info)``. When the
         episode ended, ``obs`` and ``state`` begin the next episode (its item
-        drawn from ``key``) and ``info["final_obs"]`` is the observation the
-        transition reached; otherwise ``info["final_obs"]`` equals ``obs``.
+        drawn from ``key`` by :func:`draw_item`) and ``info["final_obs"]`` is
+        the observation the transition reached; otherwise ``info["final_obs"]``
+        equals ``obs``.
+        """
+        return self.step_to_item(state, action, draw_item(key, params), params)
+
+    def step_to_item(
+        self, state: EnvState, action: jax.Array | int, next_item: jax.Array | int, params: EnvParams
+    ) -> StepResult:
+        """:meth:`step` with the next episode's item given instead of drawn.
+
+        For learners that draw the items of many environments at once from one
+        key (cheaper than a key per environment) and for tests that pin resets.
         """
         obs, next_state, reward, terminated, truncated, info = self.step_env(state, action, params)
-        reset_state = _initial_state(draw_item(key, params), params)
+        reset_state = _initial_state(jnp.asarray(next_item, dtype=jnp.int32), params)
         done = terminated | truncated
         next_state = jax.tree.map(lambda fresh, cont: jnp.where(done, fresh, cont), reset_state, next_state)
         info = {**info, "final_obs": obs}
@@ -175,12 +188,19 @@ class Warehouse:
 def draw_item(key: jax.Array, params: EnvParams) -> jax.Array:
     """The item index of a new episode, uniform over the layout's items, drawn from ``key``.
 
-    Exactly ``jax.random.randint(key, (), 0, num_items)``: the parity tests
-    replay the item a key draws. It is the largest single cost of
-    :meth:`Warehouse.step` (a key split and two threefry draws per environment
-    and step, for the automatic reset); see docs/throughput.md.
+    One 32-bit random word ``u`` mapped to ``floor(u * num_items / 2**32)``
+    (Lemire's multiply-shift, done in 16-bit halves so it needs no 64-bit
+    integers). Each item's probability is within ``2**-32`` of ``1/num_items``.
+    ``jax.random.randint`` draws two words and a key split for a bias below
+    ``2**-64``; for the automatic reset, which every environment pays on every
+    step, that made it the largest cost of :meth:`Warehouse.step` (about x1.6
+    slower at large batch, see docs/throughput.md).
     """
-    return jax.random.randint(key, (), 0, params.num_items, dtype=jnp.int32)
+    word = jax.random.bits(key, (), jnp.uint32)
+    count = params.num_items.astype(jnp.uint32)  # < 2**16, checked by Warehouse
+    high = (word >> 16) * count  # < 2**32
+    low = ((word & 0xFFFF) * count) >> 16  # < 2**16, and high + low < 2**32
+    return ((high + low) >> 16).astype(jnp.int32)
 
 
 def _initial_state(item_index: jax.Array, params: EnvParams) -> EnvState:

@@ -35,7 +35,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from wrl_jax.env import ACTION_NAMES, NUM_ACTIONS, Warehouse
+from wrl_jax.env import ACTION_NAMES, NUM_ACTIONS, Warehouse, draw_item
 from wrl_jax.layout import Layout
 from wrl_jax.registry import make, make_from_layout
 from wrl_jax.render import DEFAULT_CELL_SIZE, check_cell_size, render_ascii, render_frame
@@ -73,7 +73,7 @@ def _reset_packed(env: Warehouse, key: jax.Array, item_index: jax.Array, params:
 
     Packed: ``[obs (d), item_index]``.
     """
-    drawn = jax.random.randint(key, (), 0, params.num_items, dtype=jnp.int32)
+    drawn = draw_item(key, params)
     obs, state = env.reset_to_item(jnp.where(item_index < 0, drawn, item_index), params)
     return state, _pack(obs, state.item_index[..., None])
 

@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from wrl_jax.env import draw_item
 from wrl_jax.layout import ITEM_MARKERS
 from wrl_jax.types import EnvParams, EnvState
 
@@ -282,7 +283,7 @@ def record_episode(
     if item_index is None:
         if key is None:
             raise ValueError("record_episode needs an item_index or a PRNG key to draw one")
-        item_index = int(jax.random.randint(key, (), 0, num_items))
+        item_index = int(draw_item(key, params))
     if isinstance(item_index, bool) or not isinstance(item_index, (int, np.integer)):
         raise ValueError(f"item_index must be an integer, got {item_index!r}")
     if not 0 <= item_index < num_items:
