@@ -352,7 +352,8 @@ def test_cli_smoke(tmp_path):
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     summary = json.loads((out / "summary.json").read_text())
-    for key in ("algo", "env", "num_seeds", "total_timesteps", "compile_seconds", "train_seconds", "env_steps_per_second"):
+    fields = ("algo", "env", "num_seeds", "total_timesteps", "compile_seconds", "train_seconds", "env_steps_per_second")
+    for key in fields:
         assert key in summary, key
     assert summary["algo"] == "dqn" and summary["env"] == "Warehouse-8x8-v0" and summary["num_seeds"] == 2
     for key in ("success_rate", "mean_steps", "optimal_mean_steps", "collision_free_rate", "mean_return"):

@@ -24,9 +24,15 @@ under ``vmap`` over seeds they stay real branches and skipped work costs
 nothing.
 
 Everything a sweep may vary (learning rate, discount, epsilon schedule, tau,
-gradient clip) is a traced :class:`DQNHyper` in the runner state; what fixes
-array shapes or the program's structure (network, environments, buffer,
-batch, frequencies, loss, Double DQN) is static on :class:`DQNConfig`.
+gradient clip, Huber delta, reward scale) is a traced :class:`DQNHyper` in the
+runner state; what fixes array shapes or the program's structure (network,
+environments, buffer, batch, frequencies, loss, Double DQN, learning-rate
+annealing) is static on :class:`DQNConfig`.
+
+Compile time is part of every short run's wall time, so the update draws all
+randomness of a vector step in one call (each ``jax.random`` call site
+compiles a threefry kernel: tenths of a second each on this CPU) and the
+Q-network is initialized without QR decompositions (see :meth:`DQN.init_network`).
 """
 
 from __future__ import annotations
@@ -38,10 +44,19 @@ from typing import Any, ClassVar, Literal
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 from flax import struct
 
-from wrl_jax.agents.base import AlgoSpec, Algorithm, EpisodeStats, EpisodeSums, Metrics, sum_episode_sums, track_episodes
+from wrl_jax.agents.base import (
+    AlgoSpec,
+    Algorithm,
+    EpisodeStats,
+    EpisodeSums,
+    Metrics,
+    sum_episode_sums,
+    track_episodes,
+)
 from wrl_jax.agents.networks import MLP, mlp_forward_flops
 from wrl_jax.agents.replay import ReplayBuffer, Transition
 from wrl_jax.env import Warehouse
@@ -159,7 +174,8 @@ class DQNConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"DQNConfig.{name} must be a positive integer, got {value!r}")
-        if isinstance(self.learning_starts, bool) or not isinstance(self.learning_starts, int) or self.learning_starts < 0:
+        starts = self.learning_starts
+        if isinstance(starts, bool) or not isinstance(starts, int) or starts < 0:
             raise ValueError(f"DQNConfig.learning_starts must be a non-negative integer, got {self.learning_starts!r}")
         if not self.hidden_sizes or any(w < 1 for w in self.hidden_sizes):
             raise ValueError(f"DQNConfig.hidden_sizes must be positive widths, got {self.hidden_sizes!r}")
@@ -198,8 +214,6 @@ class DQNConfig:
 
 def check_hyper_values(**values: Any) -> None:
     """Range checks of the traced hyperparameters (scalars or arrays of sweep points)."""
-    import numpy as np
-
     def arr(name):
         return np.asarray(values[name], dtype=np.float64)
 
@@ -218,7 +232,9 @@ def check_hyper_values(**values: Any) -> None:
     for name in ("exploration_initial_eps", "exploration_final_eps"):
         if name in values and np.any((arr(name) < 0) | (arr(name) > 1)):
             fail(name, "in [0, 1]")
-    if "exploration_fraction" in values and np.any((arr("exploration_fraction") <= 0) | (arr("exploration_fraction") > 1)):
+    if "exploration_fraction" in values and np.any(
+        (arr("exploration_fraction") <= 0) | (arr("exploration_fraction") > 1)
+    ):
         fail("exploration_fraction", "in (0, 1]")
     if "max_grad_norm" in values and np.any(arr("max_grad_norm") <= 0):
         fail("max_grad_norm", "positive")
@@ -475,7 +491,9 @@ class DQN(Algorithm[DQNRunner]):
         info = {**info, "final_obs": obs}
         return jnp.where(done, reset_obs, obs), next_state, reward, terminated, truncated, info
 
-    def loss_fn(self, params: Any, target_params: Any, hyper: DQNHyper, batch: Transition) -> tuple[jax.Array, jax.Array]:
+    def loss_fn(
+        self, params: Any, target_params: Any, hyper: DQNHyper, batch: Transition
+    ) -> tuple[jax.Array, jax.Array]:
         """Mean TD loss of a batch, and the mean Q of the actions taken."""
         q_next_target = self.network.apply(target_params, batch.next_obs)
         if self.config.double_dqn:
