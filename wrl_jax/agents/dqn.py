@@ -477,19 +477,10 @@ class DQN(Algorithm[DQNRunner]):
     def _step_and_reset(
         self, state: EnvState, action: jax.Array, next_item: jax.Array, env_params: EnvParams
     ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, jax.Array]]:
-        """``env.step`` with the next episode's item given instead of drawn from a key.
-
-        The same transition and automatic reset as :meth:`Warehouse.step`
-        (``info["final_obs"]`` is the observation reached), built from the
-        environment's public ``step_env`` and ``reset_to_item`` so that the item
-        index comes from the vector step's single random draw.
-        """
-        obs, next_state, reward, terminated, truncated, info = self.env.step_env(state, action, env_params)
-        reset_obs, reset_state = self.env.reset_to_item(next_item, env_params)
-        done = terminated | truncated
-        next_state = jax.tree.map(lambda fresh, cont: jnp.where(done, fresh, cont), reset_state, next_state)
-        info = {**info, "final_obs": obs}
-        return jnp.where(done, reset_obs, obs), next_state, reward, terminated, truncated, info
+        """One environment's transition with automatic reset to ``next_item``
+        (:meth:`Warehouse.step_to_item`: the item comes from the vector step's
+        single random draw; ``info["final_obs"]`` is the observation reached)."""
+        return self.env.step_to_item(state, action, next_item, env_params)
 
     def loss_fn(
         self, params: Any, target_params: Any, hyper: DQNHyper, batch: Transition
