@@ -360,3 +360,12 @@ def test_cli_smoke(tmp_path):
         assert key in summary["eval"], key
     assert len(summary["eval"]["rows"]) == 2 * 10
     assert "Task Completion Rate" in proc.stdout
+
+
+def test_cli_rejects_invalid_config_before_compiling(tmp_path):
+    cmd = [sys.executable, str(ROOT / "train_dqn.py"), "--gamma", "2", "--out", str(tmp_path / "bad")]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
+    assert proc.returncode == 2
+    assert "gamma must be in [0, 1]" in proc.stdout + proc.stderr
+    assert not (tmp_path / "bad").exists()
