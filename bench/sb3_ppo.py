@@ -90,8 +90,6 @@ def run_ours(preset: str, env_name: str, seeds: int, total_timesteps: int | None
 def _onehot_wrapper(gym, env, size: int):
     from gymnasium import spaces
 
-    from wrl_jax.agents.ppo import encoded_size
-
     class OneHot(gym.ObservationWrapper):
         """The one-hot coordinate encoding of ``wrl_jax.agents.ppo.encode_observation``, in NumPy."""
 
@@ -107,7 +105,6 @@ def _onehot_wrapper(gym, env, size: int):
             out[6 * (size + 1) :] = obs[6:]
             return out
 
-    del encoded_size
     return OneHot(env)
 
 
