@@ -139,7 +139,7 @@ def test_reset_draws_every_item_uniformly(env_and_params):
 def test_bad_action_and_item_index_raise():
     env, params = small()
     _, state = env.reset_to_item(0, params)
-    for bad in (4, -1, 1.5, "up"):
+    for bad in (4, -1, 1.5, 2.0, True, "up", 10**20):
         with pytest.raises(ValueError, match="action"):
             env.step_env(state, bad, params)
     with pytest.raises(ValueError, match="item_index 3 is out of range"):

@@ -276,7 +276,9 @@ def make_params(
 def check_action(action: Any) -> None:
     """Raise a clear ``ValueError`` for an action outside ``{0, 1, 2, 3}``."""
     array = np.asarray(action)
-    if array.dtype.kind not in "iu" and not (array.dtype.kind == "f" and np.all(array == np.round(array))):
+    # Floats are refused even when integral (2.0), as in the reference and the
+    # Gymnasium adapters: a float action is almost always a policy-output bug.
+    if array.dtype.kind not in "iu":
         raise ValueError(f"action must be an integer in 0..3 (up, down, left, right), got {action!r}")
     if np.any((array < 0) | (array >= NUM_ACTIONS)):
         raise ValueError(f"action {action!r} is out of range: expected 0 up, 1 down, 2 left or 3 right")
