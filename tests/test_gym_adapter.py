@@ -345,7 +345,7 @@ def test_sync_vectorization_of_the_registered_id():
 
 
 # ------------------------------------------------------------ Stable-Baselines3
-def test_stable_baselines3_trains_and_evaluates():
+def test_stable_baselines3_trains_and_evaluates(tmp_path):
     sb3 = pytest.importorskip("stable_baselines3")
     torch = pytest.importorskip("torch")
     from stable_baselines3.common.env_checker import check_env as sb3_check_env
@@ -356,6 +356,8 @@ def test_stable_baselines3_trains_and_evaluates():
     sb3_check_env(WarehouseGymEnv("Warehouse-8x8-v0"), warn=True)
     env = Monitor(gym.make(IDS[0], max_steps=40))
     model = sb3.PPO("MlpPolicy", env, n_steps=64, batch_size=32, n_epochs=1, seed=0, device="cpu")
+    # SB3 otherwise creates a log folder under the system temp directory on every learn().
+    model.set_logger(sb3.common.logger.configure(str(tmp_path), []))
     model.learn(total_timesteps=128)
     assert model.num_timesteps >= 128
     mean_return, _ = evaluate_policy(model, env, n_eval_episodes=2, deterministic=True)
