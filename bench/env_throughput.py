@@ -414,6 +414,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     args.breakdown = (not quick) if args.breakdown is None else args.breakdown
     if args.out is None:
         args.out = RESULTS / ("env_throughput_quick.json" if quick else "env_throughput.json")
+    if args.out.is_dir() or args.out.suffix != ".json":
+        parser.error(f"--out must be a .json file path (the .md table is written beside it), got {args.out}")
     for name in args.envs:
         wrl_jax.registry.spec(name)  # a clear error for an unknown name, before any work
     for impl in args.key_impls:
