@@ -6,7 +6,8 @@ have a leading seed axis. :class:`ShardedTrainer` lays that batch out on a 2-D
 :class:`~jax.sharding.Mesh` of devices, axes ``("seeds", "envs")``:
 
 - every runner leaf is split along its seed axis over the mesh's ``seeds`` axis
-  (independent seeds never talk to each other: no communication at all);
+  with ``shard_map`` (independent seeds never talk to each other: no
+  communication at all, and each device runs the unsharded program of its seeds);
 - the per-seed environment batch (the leaves under ``env_state``, ``obs`` and
   ``episode_stats``, whose second axis is ``num_envs``) is additionally split
   over the ``envs`` axis. Everything else of a seed (network parameters,
@@ -20,12 +21,18 @@ metrics and the in-loop evaluation are replicated (a few kilobytes per chunk)
 so that every process can read them, which is what makes a multi-host run
 work unchanged (:func:`initialize_distributed`).
 
-Results. Sharding only the seed axis gives the same bits as one device (each
-device runs the same per-seed arithmetic on fewer seeds; tested with 2 CPU
-devices). Sharding the environment axis splits sums over the batch (losses,
-gradients, episode sums) into per-device partial sums added by an all-reduce,
-a different order of float additions: the results agree with one device to
-float32 rounding, not bit for bit (tested with a tolerance).
+Results. With the seed axis split, every device runs the unsharded program
+of its share of the seeds (``shard_map``), so a batch of ``S`` seeds on ``D``
+devices computes what ``D`` single-device batches of ``S / D`` seeds compute:
+bit for bit for PPO (tested with 2 CPU devices), and for DQN the same
+trajectories with parameters equal to float32 rounding (the per-device program
+is compiled as part of a ``D``-device module, and XLA's fusion choices there,
+such as forming a fused multiply-add, can differ by an ulp). Compared with one
+batch of ``S`` on one device, results agree to float32 rounding: XLA on CPU may
+pick a different reduction kernel for a different batch shape (true without
+sharding too). Sharding the environment axis splits sums over a seed's batch
+(losses, gradients) into per-device partial sums added by an all-reduce, another
+order of float additions: again equal to float32 rounding, not bit for bit.
 """
 
 from __future__ import annotations
@@ -140,14 +147,38 @@ class ShardedTrainer(training.Trainer):
         self.specs = runner_specs(template, self.num_envs)
         self.runner_shardings = jax.tree.map(lambda spec: NamedSharding(self.mesh, spec), self.specs)
         self.replicated = NamedSharding(self.mesh, P())
-        # Inputs and outputs pinned to the same layout: the state stays put between
+        # The seed axis is split *manually* (shard_map): every device runs exactly the
+        # program of an unsharded batch of its seeds, so the results are those of
+        # len(seeds) / devices-sized batches trained apart, bit for bit. The
+        # environment axis stays *automatic*: XLA's SPMD partitioner splits each
+        # device's environment batch further and adds the collectives. Inputs and
+        # outputs are pinned to the same layout, so the state stays put between
         # chunks and the compiled program is reused for every chunk.
-        self._chunk_jit = jax.jit(
+        seeds_spec = P(SEED_AXIS)
+        latest_specs = training.LatestEval(update=P(), episodes=seeds_spec)
+        chunk = self._per_device(
             self._chunk,
+            in_specs=(seeds_spec, P(), latest_specs),
+            out_specs=(seeds_spec, P(None, SEED_AXIS), latest_specs),
+        )
+        self._chunk_jit = jax.jit(
+            chunk,
             in_shardings=(self.runner_shardings, self.replicated, self.replicated),
             out_shardings=(self.runner_shardings, self.replicated, self.replicated),
         )
-        self._eval_jit = jax.jit(self._evaluate, in_shardings=(self.runner_shardings,), out_shardings=self.replicated)
+        evaluate = self._per_device(self._evaluate, in_specs=(seeds_spec,), out_specs=seeds_spec)
+        self._eval_jit = jax.jit(evaluate, in_shardings=(self.runner_shardings,), out_shardings=self.replicated)
+
+    def _per_device(self, fn, in_specs, out_specs):
+        """``fn`` run on each device's slice of the seed axis (other mesh axes left to XLA)."""
+        return jax.shard_map(
+            fn,
+            mesh=self.mesh,
+            in_specs=in_specs,
+            out_specs=out_specs,
+            axis_names=frozenset({SEED_AXIS}),
+            check_vma=False,
+        )
 
     # ------------------------------------------------------------ placement
     def init(self, hyper: Any = None, env_params: Any = None) -> Any:

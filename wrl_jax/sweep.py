@@ -422,7 +422,7 @@ def plot_sweep(result: SweepResult, path: Path) -> None:
     for p in result.per_point:
         groups.setdefault(tuple(p[f] for f in others), []).append(p)
     panels = [
-        ("success_rate", "greedy success rate", 100.0),
+        ("success_rate", "greedy success rate (%)", 100.0),
         ("optimal_rate", "items at the BFS optimum (%)", 100.0),
         ("mean_steps", "mean steps (delivered)", 1.0),
     ]
@@ -436,6 +436,8 @@ def plot_sweep(result: SweepResult, path: Path) -> None:
             ax.errorbar(x if numeric else range(len(x)), y, yerr=err, marker="o", capsize=3, label=name)
         if log_x:
             ax.set_xscale("log")
+        if scale == 100.0:
+            ax.set_ylim(-5, 105)  # a rate: the CI of a few seeds can reach past 0-100 %
         if not numeric:
             ax.set_xticks(range(len(xs)), [str(v) for v in xs])
         ax.set_xlabel(x_field)

@@ -1,0 +1,202 @@
+"""Training sharded over devices (wrl_jax.sharding) gives the unsharded results.
+
+XLA flags must be set before JAX initializes, so each check runs in a fresh
+Python process with ``XLA_FLAGS=--xla_force_host_platform_device_count=2``
+(two CPU devices) and reports its comparisons as JSON.
+
+What is compared, and why not everything bitwise: XLA on CPU may choose a
+different reduction kernel for a different batch shape, so a seed trained in a
+batch of 4 and in a batch of 2 can differ in the last bits (see docs/scale.md).
+Sharding the seed axis of a batch of 4 over 2 devices runs batches of 2, so it is
+compared *bit for bit* with the two single-device batches of 2 it consists of,
+and with a tight tolerance with the single-device batch of 4. That holds for
+PPO; for DQN the per-device program is compiled inside a 2-device module and
+XLA's fusion choices there (e.g. where a multiply and an add become one fused
+multiply-add) can move a parameter by an ulp: its integer state (trajectories)
+is compared exactly and its floats with a tolerance. Sharding the
+environment axis splits sums over a seed's batch into per-device partial sums
+(another addition order), so it is compared with a tolerance.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from wrl_jax import sharding
+
+ROOT = Path(__file__).resolve().parents[1]
+
+PRELUDE = """
+import json, os
+import jax, numpy as np
+import wrl_jax
+from wrl_jax import sharding, training
+from wrl_jax.agents.dqn import DQN, DQNConfig
+from wrl_jax.agents.ppo import PPO, PPOConfig
+
+ENV = "Warehouse-8x8-v0"
+env, params = wrl_jax.make(ENV)
+TINY_PPO = PPOConfig(num_envs=8, num_steps=16, num_minibatches=2, update_epochs=1, hidden_sizes=(16,),
+                     total_timesteps=8 * 16 * 4)
+TINY_DQN = DQNConfig(num_envs=4, train_freq=1, batch_size=16, hidden_sizes=(16,), buffer_size=256,
+                     learning_starts=16, target_update_interval=8, total_timesteps=4 * 24)
+LOOP = training.LoopConfig(chunk_updates=2, eval_every=0, progress=False)
+out = {"devices": len(jax.devices())}
+
+def leaves(tree):
+    return [np.asarray(x) for x in jax.tree_util.tree_leaves(tree)]
+
+def bitwise(a, b):
+    return len(a) == len(b) and all(np.array_equal(x, y) for x, y in zip(a, b))
+
+def max_diff(a, b):
+    return max(float(np.max(np.abs(x.astype(np.float64) - y.astype(np.float64)))) for x, y in zip(a, b))
+
+def rows_bitwise(a, b):
+    return len(a) == len(b) and all(
+        a_.keys() == b_.keys() and np.array_equal(np.array(list(a_.values()), float),
+                                                   np.array(list(b_.values()), float), equal_nan=True)
+        for a_, b_ in zip(a, b))
+"""
+
+SEED_AXIS = """
+algo = PPO(TINY_PPO, env, params)
+seeds = [0, 1, 2, 3]
+sharded = training.run(sharding.ShardedTrainer(algo, seeds, LOOP, sharding.make_mesh(2, 1)))
+lay = sharded.runners.params
+out["param_spec"] = list(lay.sharding.spec)
+out["param_shard_rows"] = sorted(s.data.shape[0] for s in lay.addressable_shards)
+out["param_shard_devices"] = len({s.device for s in lay.addressable_shards})
+halves = [training.run(training.Trainer(algo, part, LOOP)) for part in ([0, 1], [2, 3])]
+joined = [np.concatenate([a, b]) for a, b in zip(leaves(halves[0].runners), leaves(halves[1].runners))]
+out["seed_sharded_equals_halves_bitwise"] = bitwise(leaves(sharded.runners), joined)
+# Metric rows: the sharded run's rows of seeds 0, 1 are the first half's rows.
+rows_01 = [r for r in sharded.rows if r["seed"] in (0, 1)]
+out["rows_equal_halves_bitwise"] = rows_bitwise(rows_01, halves[0].rows)
+whole = training.run(training.Trainer(algo, seeds, LOOP))
+out["seed_sharded_vs_one_device_max_diff"] = max_diff(leaves(sharded.runners), leaves(whole.runners))
+out["keys_equal"] = bitwise(leaves(sharded.runners.key), leaves(whole.runners.key))
+out["env_state_equal"] = bitwise(leaves(sharded.runners.env_state), leaves(whole.runners.env_state))
+# Environment axis split over the 2 devices (each device: all 4 seeds, half of each seed's envs).
+env_sharded = training.run(sharding.ShardedTrainer(algo, seeds, LOOP, sharding.make_mesh(2, 2)))
+out["env_obs_spec"] = list(env_sharded.runners.obs.sharding.spec)
+out["env_obs_shard_shape"] = list(env_sharded.runners.obs.addressable_shards[0].data.shape)
+out["env_sharded_vs_one_device_max_diff"] = max_diff(leaves(env_sharded.runners), leaves(whole.runners))
+out["env_sharded_env_state_equal"] = bitwise(leaves(env_sharded.runners.env_state), leaves(whole.runners.env_state))
+print("RESULT" + json.dumps(out))
+"""
+
+SWEEP_AXIS = """
+from wrl_jax import sweep as sw
+# A PPO sweep of 2 points x 2 seeds on 2 devices: each device trains one point.
+grid = {"learning_rate": [0.003, 0.03], "shaping_coef": [1.0]}
+sweep = sw.Sweep("ppo", TINY_PPO, ENV, {}, grid, seeds=[0, 1])
+loop = training.LoopConfig(chunk_updates=2, eval_every=2, progress=False)
+sharded = sw.run_sweep(sweep, loop, mesh=sharding.make_mesh(2, 1))
+out["sweep_spec"] = list(sharded.run.runners.hyper.learning_rate.sharding.spec)
+# ... which is each point trained on its own with its own config, on one device, bit for bit.
+equal, tables = [], []
+for g, point in enumerate(sweep.points):
+    config = TINY_PPO.__class__(**{**TINY_PPO.__dict__, "learning_rate": point["learning_rate"]})
+    env_g, params_g = wrl_jax.make(ENV, shaping_coef=point["shaping_coef"])
+    alone = training.run(training.Trainer(PPO(config, env_g, params_g), [0, 1], loop))
+    equal.append(bitwise([x[2 * g: 2 * g + 2] for x in leaves(sharded.run.runners)], leaves(alone.runners)))
+    evals = training.final_evaluation(None, alone)
+    tables.append(bitwise([x[2 * g: 2 * g + 2] for x in leaves(training.final_evaluation(None, sharded.run))],
+                          leaves(evals)))
+out["sweep_points_equal_individual_runs_bitwise"] = equal
+out["sweep_points_eval_equal"] = tables
+# DQN, seed axis over 2 devices vs the same seeds in one device's batches of 2.
+algo = DQN(TINY_DQN, env, params)
+dqn_sharded = training.run(sharding.ShardedTrainer(algo, [0, 1, 2, 3], LOOP, sharding.make_mesh(2, 1)))
+dqn_half = training.run(training.Trainer(algo, [0, 1], LOOP))
+first = [x[:2] for x in leaves(dqn_sharded.runners)]
+out["dqn_sharded_vs_half_max_diff"] = max_diff(first, leaves(dqn_half.runners))
+out["dqn_integer_state_equal"] = bitwise([x for x in first if x.dtype.kind != "f"],
+                                         [x for x in leaves(dqn_half.runners) if x.dtype.kind != "f"])
+print("RESULT" + json.dumps(out))
+"""
+
+
+def run_with_two_devices(body: str) -> dict:
+    env = dict(os.environ)
+    env["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2 --xla_backend_optimization_level=1"
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    proc = subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(PRELUDE) + textwrap.dedent(body)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=ROOT,
+    )
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    line = [l for l in proc.stdout.splitlines() if l.startswith("RESULT")][-1]
+    return json.loads(line[len("RESULT") :])
+
+
+def test_seed_and_env_axes_sharded_match_one_device():
+    out = run_with_two_devices(SEED_AXIS)
+    print(out)
+    assert out["devices"] == 2
+    # The state is really split: each device holds 2 of the 4 seeds' parameters.
+    assert out["param_spec"] == ["seeds"]
+    assert out["param_shard_rows"] == [2, 2] and out["param_shard_devices"] == 2
+    # Seed axis: bit for bit what the two single-device halves compute.
+    assert out["seed_sharded_equals_halves_bitwise"]
+    assert out["rows_equal_halves_bitwise"]
+    # ... and the single-device batch of 4 up to float32 rounding of batched reductions.
+    assert out["seed_sharded_vs_one_device_max_diff"] < 1e-5
+    assert out["keys_equal"] and out["env_state_equal"]  # integer state: identical trajectories
+    # Environment axis: each device steps half of every seed's environments.
+    assert out["env_obs_spec"] == ["seeds", "envs"]
+    assert out["env_obs_shard_shape"][:2] == [4, 4]  # 4 seeds x 8 envs -> 4 x 4 per device
+    assert out["env_sharded_vs_one_device_max_diff"] < 1e-5
+    assert out["env_sharded_env_state_equal"]
+
+
+def test_sharded_sweep_and_dqn_match_one_device():
+    out = run_with_two_devices(SWEEP_AXIS)
+    print(out)
+    assert out["sweep_spec"] == ["seeds"]
+    assert out["sweep_points_equal_individual_runs_bitwise"] == [True, True]
+    assert out["sweep_points_eval_equal"] == [True, True]
+    # DQN: the same trajectories (every integer leaf: positions, actions, replay indices, keys),
+    # parameters equal up to float32 rounding (see the module docstring).
+    assert out["dqn_integer_state_equal"]
+    assert out["dqn_sharded_vs_half_max_diff"] < 1e-6
+
+
+def test_layout_errors_are_clear():
+    mesh = sharding.make_mesh(1, 1)
+    sharding.check_layout(3, 8, mesh)  # one device: anything goes
+    with pytest.raises(ValueError, match="devices=5 but only"):
+        sharding.make_mesh(5)
+    with pytest.raises(ValueError, match="env_shards=3 must be a positive divisor"):
+        sharding.make_mesh(1, 3)
+    with pytest.raises(ValueError, match="devices must be a positive number"):
+        sharding.make_mesh(-1)
+
+
+def test_layout_errors_need_two_devices():
+    body = """
+errors = {}
+mesh = sharding.make_mesh(2, 1)
+for name, args in {"seeds": (3, 8, mesh), "envs": (2, 7, sharding.make_mesh(2, 2))}.items():
+    try:
+        sharding.check_layout(*args)
+    except ValueError as exc:
+        errors[name] = str(exc)
+out["errors"] = errors
+print("RESULT" + json.dumps(out))
+"""
+    out = run_with_two_devices(body)
+    assert "3 seeds (x sweep points) do not split evenly over 2 devices" in out["errors"]["seeds"]
+    assert "num_envs=7 does not split evenly over env_shards=2" in out["errors"]["envs"]
