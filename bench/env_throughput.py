@@ -19,10 +19,13 @@ What one JAX "step" includes (per environment; everything inside the one jitted 
 2. its own key for the automatic reset: the scan carries a key, splits it once
    per step, and ``jax.random.split(step_key, batch)`` gives each environment
    one (what PureJaxRL-style learners and this repository's PPO do;
-   ``--env-keys fold_in`` folds the environment index in instead);
+   ``--env-keys fold_in`` folds the environment index in instead;
+   ``--env-keys batched`` gives no key per environment: the step's key draws
+   one word per environment with ``wrl_jax.env.draw_items`` and the batch is
+   stepped with ``env.step_to_item``, as this repository's DQN does);
 3. ``env.step``: the transition, reward, termination and truncation, the
-   reset item drawn from that key (``jax.random.randint``), the auto-reset
-   select, the observation and ``info["final_obs"]``;
+   reset item drawn from that key (``wrl_jax.env.draw_item``: one word), the
+   auto-reset select, the observation and ``info["final_obs"]``;
 4. consuming everything a learner reads from the step: ``obs``,
    ``info["final_obs"]``, ``reward``, ``terminated`` and ``truncated`` are
    summed into a float32 checksum carried by the scan, so XLA cannot drop any
@@ -130,6 +133,7 @@ def make_rollout(env: Warehouse, batch: int, horizon: int, actions: str, part: s
     this repository's learners (one compiled program serves every layout of a size).
     """
     vstep = jax.vmap(env.step, in_axes=(0, 0, 0, None))
+    vstep_to_item = jax.vmap(env.step_to_item, in_axes=(0, 0, 0, None))
     shared_key_step = jax.vmap(env.step, in_axes=(None, 0, 0, None))
     draw = jax.vmap(wrl_jax.env.draw_item, in_axes=(0, None))
 
@@ -141,12 +145,19 @@ def make_rollout(env: Warehouse, batch: int, horizon: int, actions: str, part: s
             state, key, checksum = carry
             key, env_key = jax.random.split(key)
             action = actions_at(source, batch, actions)
+            if part == "rng_only" and env_keys == "batched":
+                items = wrl_jax.env.draw_items(env_key, batch, params)
+                checksum = checksum + jnp.sum(items.astype(jnp.float32)) + jnp.sum(action.astype(jnp.float32))
+                return (state, key, checksum), None
             if part == "rng_only":
                 items = draw(per_env_keys(env_key, batch, env_keys), params)
                 checksum = checksum + jnp.sum(items.astype(jnp.float32)) + jnp.sum(action.astype(jnp.float32))
                 return (state, key, checksum), None
             if part == "shared_key":
                 obs, state, reward, terminated, truncated, info = shared_key_step(env_key, state, action, params)
+            elif env_keys == "batched":
+                items = wrl_jax.env.draw_items(env_key, batch, params)
+                obs, state, reward, terminated, truncated, info = vstep_to_item(state, action, items, params)
             else:
                 keys = per_env_keys(env_key, batch, env_keys)
                 obs, state, reward, terminated, truncated, info = vstep(keys, state, action, params)
@@ -330,7 +341,7 @@ def load_average() -> list[float] | None:
         return None
 
 
-def markdown_table(jax_rows: list[dict], ref_rows: list[dict]) -> str:
+def markdown_table(jax_rows: list[dict], ref_rows: list[dict], env_keys: str = "split") -> str:
     reference = {row["env_name"]: row["steps_per_s"] for row in ref_rows if row["kind"].startswith("numpy")}
     lines = [
         "| environment | implementation | batch | steps/s | x reference | compile s |",
@@ -343,6 +354,10 @@ def markdown_table(jax_rows: list[dict], ref_rows: list[dict]) -> str:
     for row in jax_rows:
         ratio = row["steps_per_s"] / reference[row["env_name"]]
         impl = f"JAX env.step, {row['key_impl']} keys"
+        if env_keys == "batched":
+            impl = f"JAX env.step_to_item + draw_items (one key per batch step), {row['key_impl']} keys"
+        elif env_keys == "fold_in":
+            impl += " (fold_in per env)"
         impl += " (JAX default)" if row["key_impl"] == "threefry2x32" else " (caller's choice)"
         shown = f"{ratio:,.0f}" if ratio >= 10 else f"{ratio:.1f}"
         lines.append(f"| {row['env_name']} | {impl} | {row['batch']:,} | {row['steps_per_s']:,.0f} | "
@@ -386,8 +401,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--repeats", type=int, default=None, help="timed calls per configuration (default 7)")
     parser.add_argument("--actions", choices=("packed", "randint"), default="packed",
                         help="how random actions are drawn (see draw_action_source)")
-    parser.add_argument("--env-keys", choices=("split", "fold_in"), default="split",
-                        help="how the per-env reset keys are made from the step's key (see per_env_keys)")
+    parser.add_argument("--env-keys", choices=("split", "fold_in", "batched"), default="split",
+                        help="how the per-env reset keys are made from the step's key (see per_env_keys); "
+                             "batched: no per-env keys, items from env.draw_items and env.step_to_item")
     parser.add_argument("--reference-steps", type=int, default=None,
                         help="transitions per timed call of the NumPy reference (default 20000)")
     parser.add_argument("--vector-sizes", nargs="*", type=int, default=None,
@@ -474,7 +490,7 @@ def main(argv: list[str] | None = None) -> dict:
                  and row["kind"].startswith("numpy")}
     for row in jax_rows + ref_rows:
         row["ratio_vs_reference"] = row["steps_per_s"] / reference[row["env_name"]]
-    table = markdown_table([row for row in jax_rows if row["part"] == "step"], ref_rows)
+    table = markdown_table([row for row in jax_rows if row["part"] == "step"], ref_rows, args.env_keys)
     if args.breakdown:
         table += "\n\n" + breakdown_table(jax_rows)
     result = {

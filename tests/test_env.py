@@ -265,3 +265,18 @@ def test_step_to_item_pins_the_next_episode():
     pinned = env.step_to_item(state, UP, 0, params)
     for a, b in zip(jax.tree.leaves(keyed), jax.tree.leaves(pinned)):
         np.testing.assert_array_equal(a, b)  # no episode end: the key changes nothing
+
+
+def test_draw_items_gives_each_env_its_own_uniform_item():
+    """draw_items: one key, one word per environment, the same multiply-shift as draw_item."""
+    from wrl_jax.env import draw_items
+
+    _, params = wrl_jax.make("Warehouse-12x12-v0")
+    key = jax.random.key(5)
+    items = np.asarray(draw_items(key, 20_000, params))
+    words = np.asarray(jax.random.bits(key, (20_000,), jnp.uint32)).astype(np.uint64)
+    np.testing.assert_array_equal(items, (words * 20) >> 32)
+    counts = np.bincount(items, minlength=20)
+    assert counts.shape == (20,) and ((counts - 1000) ** 2 / 1000).sum() < 3 * 20 + 60
+    # Another key draws other items.
+    assert (np.asarray(draw_items(jax.random.key(6), 20_000, params)) != items).mean() > 0.9

@@ -188,16 +188,33 @@ class Warehouse:
 def draw_item(key: jax.Array, params: EnvParams) -> jax.Array:
     """The item index of a new episode, uniform over the layout's items, drawn from ``key``.
 
-    One 32-bit random word ``u`` mapped to ``floor(u * num_items / 2**32)``
-    (Lemire's multiply-shift, done in 16-bit halves so it needs no 64-bit
-    integers). Each item's probability is within ``2**-32`` of ``1/num_items``.
+    One 32-bit random word mapped to an item by :func:`item_from_word`.
     ``jax.random.randint`` draws two words and a key split for a bias below
     ``2**-64``; for the automatic reset, which every environment pays on every
     step, that made it the largest cost of :meth:`Warehouse.step` (about x1.6
     slower at large batch, see docs/throughput.md).
     """
-    word = jax.random.bits(key, (), jnp.uint32)
-    count = params.num_items.astype(jnp.uint32)  # < 2**16, checked by Warehouse
+    return item_from_word(jax.random.bits(key, (), jnp.uint32), params.num_items)
+
+
+def draw_items(key: jax.Array, num_envs: int, params: EnvParams) -> jax.Array:
+    """Items of ``num_envs`` new episodes from ONE key: ``(num_envs,)`` int32.
+
+    For a learner stepping a batch with :meth:`Warehouse.step_to_item`: one
+    ``jax.random.bits`` call gives every environment an independent uniform
+    word, so the batch needs no key per environment (a threefry block each,
+    about a quarter of the cost of a default step at large batch).
+    """
+    return item_from_word(jax.random.bits(key, (num_envs,), jnp.uint32), params.num_items)
+
+
+def item_from_word(word: jax.Array, num_items: jax.Array) -> jax.Array:
+    """``floor(word * num_items / 2**32)`` for uniform uint32 words: an item index in ``0..num_items-1``.
+
+    Lemire's multiply-shift, done in 16-bit halves so it needs no 64-bit
+    integers. Each item's probability is within ``2**-32`` of ``1/num_items``.
+    """
+    count = num_items.astype(jnp.uint32)  # < 2**16, checked by Warehouse
     high = (word >> 16) * count  # < 2**32
     low = ((word & 0xFFFF) * count) >> 16  # < 2**16, and high + low < 2**32
     return ((high + low) >> 16).astype(jnp.int32)
