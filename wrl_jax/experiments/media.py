@@ -9,8 +9,9 @@ Trains (default presets, 2 seeds each, a minute or two on 2 cores):
 - PPO on ``Warehouse-12x12-v0``;
 
 then records seed 0's greedy policy with :func:`wrl_jax.render.record_episode`:
-``dqn_8x8.gif``, ``ppo_12x12.gif``, ``failure_oscillation.gif`` (the failure
-mode, cut to its first ``--failure-frames`` steps), and ``learning_curves.png``
+``dqn_8x8.gif``, ``ppo_12x12.gif``, ``failure_oscillation.gif`` (an episode
+that the oscillation setting's greedy policy fails to deliver, cut to its first
+``--failure-frames`` steps), and ``learning_curves.png``
 (greedy items-at-optimum and training delivery rate against env steps).
 """
 
@@ -37,6 +38,16 @@ def greedy_policy(algo, network_params):
 
 def seed_params(results: common.VariantResult, seed_index: int = 0):
     return jax.tree.map(lambda x: x[seed_index], results.network_params)
+
+
+def failing_episode(results: common.VariantResult, preferred_item: int) -> tuple[int, int]:
+    """(seed index, item) of an undelivered greedy episode, the preferred item first; else (0, preferred)."""
+    delivered = np.asarray(results.episodes.delivered) | ~np.asarray(results.episodes.valid)
+    for s in range(delivered.shape[0]):
+        if not delivered[s, preferred_item]:
+            return s, preferred_item
+    failed = np.argwhere(~delivered)
+    return (int(failed[0][0]), int(failed[0][1])) if failed.size else (0, preferred_item)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -73,7 +84,8 @@ def main(argv: list[str] | None = None) -> int:
     written["ppo_12x12.gif"] = (rec, save_gif(rec.frames, out / "ppo_12x12.gif", fps=6))
     bad = dqn_results[f"DQN 8x8, {OSCILLATION}"]
     bad_params = variants[f"DQN 8x8, {OSCILLATION}"]
-    rec = record_episode(env8, bad_params, greedy_policy(dqn, seed_params(bad)), args.dqn_item, cell_size=args.cell_size)
+    seed, item = failing_episode(bad, args.dqn_item)
+    rec = record_episode(env8, bad_params, greedy_policy(dqn, seed_params(bad, seed)), item, cell_size=args.cell_size)
     written["failure_oscillation.gif"] = (rec, save_gif(rec.frames[: args.failure_frames + 1],
                                                        out / "failure_oscillation.gif", fps=5))
 
