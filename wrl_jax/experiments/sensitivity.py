@@ -92,12 +92,12 @@ def plot(grid: dict[str, np.ndarray], scales: list[float], path: Path, n_seeds: 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(1.3 * len(scales) + 3.2, 3.6))
-    im = ax.imshow(grid["success_rate"], vmin=0, vmax=1, cmap="RdYlGn")
+    fig, ax = plt.subplots(figsize=(1.4 * len(scales) + 3.4, 3.8))
+    im = ax.imshow(grid["success_rate"], vmin=0, vmax=1, cmap="RdYlGn", aspect="auto")
     for i in range(len(TERMS)):
         for j in range(len(scales)):
-            ax.text(j, i, f"{100 * grid['success_rate'][i, j]:.0f}%\n({100 * grid['optimal_rate'][i, j]:.0f}% opt)",
-                    ha="center", va="center", fontsize=7)
+            ax.text(j, i, f"{100 * grid['success_rate'][i, j]:.0f}%\n{100 * grid['optimal_rate'][i, j]:.0f}% opt",
+                    ha="center", va="center", fontsize=8)
     ax.set_xticks(range(len(scales)), [f"x{s:g}" for s in scales])
     ax.set_yticks(range(len(TERMS)), TERMS, fontsize=8)
     ax.set_xlabel("scale of the term (others at defaults)")
