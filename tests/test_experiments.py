@@ -87,7 +87,8 @@ def test_one_item_params_keeps_shapes_and_rejects_bad_items():
     one = forgetting.one_item_params(params, 4)
     assert one.items.shape == params.items.shape
     assert int(one.num_items) == 1
-    np.testing.assert_array_equal(np.asarray(one.items), np.broadcast_to(np.asarray(params.items[4]), params.items.shape))
+    expected = np.broadcast_to(np.asarray(params.items[4]), params.items.shape)
+    np.testing.assert_array_equal(np.asarray(one.items), expected)
     with pytest.raises(ValueError, match="out of range"):
         forgetting.one_item_params(params, 10)
 
@@ -99,12 +100,13 @@ def test_segments_really_swap_the_item_and_keep_learning_state():
     env, full = make(ENV_8, max_steps=4)
     algo, _, _ = build(setting, env=env, params=full)
     seeds = [0, 1]
-    variants = ("randomized (fix)", "segmented")
+    # Runners 0-1: randomized items (the full layout); runners 2-3: segmented (one item per segment).
     runners = forgetting.training_init(algo, seeds * 2, full)
     segment = forgetting.make_segment_fn(algo, full, segment_updates=8)
     clear = jnp.zeros(4, bool)
     for k, item in enumerate([3, 7]):
-        params = common.stack_trees([full, full, forgetting.one_item_params(full, item), forgetting.one_item_params(full, item)])
+        one = forgetting.one_item_params(full, item)
+        params = common.stack_trees([full, full, one, one])
         before = runners
         runners, stats, episodes = segment(runners, params, clear, jnp.int32(8 * k))
         # Segmented runners' environments now only hold the segment's item ...
@@ -118,13 +120,13 @@ def test_segments_really_swap_the_item_and_keep_learning_state():
         # Learning state carries over: the buffer keeps growing, the network changes.
         assert np.all(np.asarray(runners.buffer.size) > np.asarray(before.buffer.size))
         assert episodes.delivered.shape == (4, 10)  # evaluated on every item, not the segment's one
-    assert not np.allclose(np.asarray(jax.tree.leaves(runners.params)[0][2]), np.asarray(jax.tree.leaves(before.params)[0][2]))
+    kernel_after, kernel_before = jax.tree.leaves(runners.params)[0][2], jax.tree.leaves(before.params)[0][2]
+    assert not np.allclose(np.asarray(kernel_after), np.asarray(kernel_before))
 
     cleared = forgetting.make_segment_fn(algo, full, segment_updates=1)(
         runners, common.stack_trees([full] * 4), jnp.array([False, False, True, True]), jnp.int32(16))[0]
     assert np.all(np.asarray(cleared.buffer.size[2:]) == 4)  # emptied, then one vector step of 4 transitions
     assert np.all(np.asarray(cleared.buffer.size[:2]) == np.asarray(runners.buffer.size[:2]) + 4)
-    del variants
 
 
 # ------------------------------------------------------------- stage-blind env
@@ -159,7 +161,8 @@ def test_table3_quick_writes_files(tmp_path):
 def test_failure_modes_quick_writes_files(tmp_path):
     assert failure_modes.main(["--quick", "--modes", "collision", "forgetting", "--out", str(tmp_path)]) == 0
     data = _read(tmp_path / "table4.json")
-    assert set(data["variants"]) == {"fixed (final setting)", "collision bug", "collision bug, evaluated without the bug"}
+    expected = {"fixed (final setting)", "collision bug", "collision bug, evaluated without the bug"}
+    assert set(data["variants"]) == expected
     assert data["forgetting"]["variants"] == list(forgetting.VARIANTS)
     for name in ("table4.md", "table4.png", "forgetting.png"):
         assert (tmp_path / name).stat().st_size > 0

@@ -28,7 +28,8 @@ def test_notebook_runs(name, tmp_path, monkeypatch):
     errors = [out for cell in book.cells if cell.cell_type == "code" for out in cell.get("outputs", [])
               if out.get("output_type") == "error"]
     assert not errors
-    text = "".join(out.get("text", "") for cell in book.cells if cell.cell_type == "code" for out in cell.get("outputs", []))
+    outputs = [out for cell in book.cells if cell.cell_type == "code" for out in cell.get("outputs", [])]
+    text = "".join(out.get("text", "") for out in outputs)
     assert "quick mode" in text or name != "quickstart.ipynb"
 
 

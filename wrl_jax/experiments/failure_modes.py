@@ -1,6 +1,7 @@
 """The study's Table 4, measured: each failure mode as a setting, against its fix.
 
-``python -m wrl_jax.experiments.failure_modes --out DIR [--quick] [--seeds 8] [--modes stage oscillation collision forgetting]``
+``python -m wrl_jax.experiments.failure_modes --out DIR [--quick] [--seeds 8]
+[--modes stage oscillation collision forgetting]``
 
 Every mode is trained with the otherwise-working configuration (DQN, ``default``
 preset, ``Warehouse-8x8-v0``, 160,000 env steps per seed: 8/8 and 96/96 seeds
@@ -114,7 +115,8 @@ def run_groups(modes: list[str], seeds: list[int], quick: bool):
             env, base_params = stage_blind()
         else:
             env, base_params = make(ENV_8, observe_carrying=(observation == "flag"))
-        params = {label: make(ENV_8, observe_carrying=(observation == "flag"), **ov)[1] for label, ov in variants.items()}
+        observe_carrying = observation == "flag"
+        params = {label: make(ENV_8, observe_carrying=observe_carrying, **ov)[1] for label, ov in variants.items()}
         algo, _, _ = build(BASE, quick, env=env, params=base_params)
         print(f"[table4] {observation}: {len(variants)} variants x {len(seeds)} seeds", flush=True)
         res, timing = common.train_variants(algo, params, seeds, eval_every=max(1, algo.num_updates // 40),
@@ -159,7 +161,8 @@ def main(argv: list[str] | None = None) -> int:
             f"policy on every item.{' QUICK RUN: not a result.' if args.quick else ''}\n\n"
             + common.markdown_table(header, rows)
             + "\nCompile / train seconds per program: "
-            + ", ".join(f"{k}: {t.compile_seconds:.1f} / {t.train_seconds:.1f} ({t.runners} runs)" for k, t in timings.items())
+            + ", ".join(f"{k}: {t.compile_seconds:.1f} / {t.train_seconds:.1f} ({t.runners} runs)"
+                        for k, t in timings.items())
             + f".\nBackend: {machine['backend']}, load {machine['load_average']}.\n")
     data = {"quick": args.quick, "ci_method": args.ci, "machine": machine, "env_steps_per_seed": steps,
             "timings": {k: vars(t) for k, t in timings.items()},
@@ -187,12 +190,13 @@ def plot(results: dict[str, common.VariantResult], path: Path, n_seeds: int) -> 
     labels = list(results)
     fig, axes = plt.subplots(1, 2, figsize=(12, 0.45 * len(labels) + 1.6), sharey=True)
     y = np.arange(len(labels))
-    for ax, key, title in ((axes[0], "success_rate", "delivery rate"), (axes[1], "optimal_rate", "items at BFS optimum")):
+    panels = ((axes[0], "success_rate", "delivery rate"), (axes[1], "optimal_rate", "items at BFS optimum"))
+    for ax, key, title in panels:
         cis = [results[lab].summary()[key] for lab in labels]
         means = np.array([c.mean for c in cis])
         err = np.array([[c.mean - c.low, c.high - c.mean] for c in cis]).T
-        colors = ["tab:green" if lab.startswith("fixed") else "tab:red" if "study" in MODE_OF.get(lab, "") else "tab:blue"
-                  for lab in labels]
+        colors = ["tab:green" if lab.startswith("fixed") else "tab:red" if "study" in MODE_OF.get(lab, "")
+                  else "tab:blue" for lab in labels]
         ax.barh(y, means, xerr=np.nan_to_num(err), color=colors, alpha=0.8, capsize=3)
         for s in range(n_seeds):
             ax.scatter([results[lab].per_seed[key][s] for lab in labels], y, s=6, color="black", zorder=3)

@@ -34,7 +34,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = common.base_parser(__doc__.splitlines()[0])
     parser.add_argument("--presets", nargs="+", default=["default"], choices=["paper", "default"])
     parser.add_argument("--envs", nargs="+", default=[ENV_12, ENV_8], choices=[ENV_12, ENV_8])
-    parser.add_argument("--steps", type=int, default=None, help="env steps per seed for every run (default: table above)")
+    parser.add_argument("--steps", type=int, default=None,
+                        help="env steps per seed for every run (default: BUDGETS)")
     args = parser.parse_args(argv)
     if args.steps is not None and args.steps < 1:
         raise SystemExit(f"error: --steps must be positive, got {args.steps}")
@@ -50,7 +51,8 @@ def main(argv: list[str] | None = None) -> int:
                 setting = Setting(algo_name, preset, env_name, total_timesteps=budget)
                 algo, _, params = build(setting, args.quick)
                 label = setting.label
-                print(f"[scale] {label}: {n_seeds} seeds x {algo.num_updates * algo.steps_per_update:,} steps", flush=True)
+                steps = algo.num_updates * algo.steps_per_update
+                print(f"[scale] {label}: {n_seeds} seeds x {steps:,} steps", flush=True)
                 res, timing = common.train_variants(algo, {label: params}, seeds,
                                                     eval_every=max(1, algo.num_updates // 50))
                 results[label], timings[label] = res[label], timing
@@ -71,7 +73,8 @@ def main(argv: list[str] | None = None) -> int:
                      f"{timings[label].compile_seconds:.1f} / {timings[label].train_seconds:.1f}"])
     machine = common.machine_info()
     text = (f"# Section 7.1: DQN vs PPO at equal env-step budgets\n\n{n_seeds} seeds per row, mean "
-            f"[95% {args.ci} CI] of the final greedy policy on every item.{' QUICK RUN: not a result.' if args.quick else ''}\n\n"
+            f"[95% {args.ci} CI] of the final greedy policy on every item."
+            f"{' QUICK RUN: not a result.' if args.quick else ''}\n\n"
             + common.markdown_table(header, rows)
             + f"\nBackend: {machine['backend']} ({machine['device']}), load {machine['load_average']}, "
               f"wall {watch.seconds():.0f} s.\n")

@@ -72,8 +72,9 @@ def main(argv: list[str] | None = None) -> int:
             f"rate over every item, mean [95% {args.ci} CI] / items delivered at the BFS optimum. Each term scaled "
             f"alone, the others at their defaults.{' QUICK RUN: not a result.' if args.quick else ''}\n\n"
             + common.markdown_table(header, rows)
-            + f"\nCompile {timing.compile_seconds:.1f} s, train {timing.train_seconds:.1f} s ({timing.runners} runs in one "
-              f"program); wall {watch.seconds():.0f} s; backend {machine['backend']}, load {machine['load_average']}.\n")
+            + f"\nCompile {timing.compile_seconds:.1f} s, train {timing.train_seconds:.1f} s ({timing.runners} runs in "
+              f"one program); wall {watch.seconds():.0f} s; backend {machine['backend']}, "
+              f"load {machine['load_average']}.\n")
     common.write_text(out / "sensitivity.md", text)
     common.write_json(out / "sensitivity.json", {
         "quick": args.quick, "ci_method": args.ci, "machine": machine, "terms": TERMS, "scales": scales,

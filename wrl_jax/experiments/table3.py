@@ -71,7 +71,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = common.base_parser(__doc__.splitlines()[0])
     parser.add_argument("--presets", nargs="+", default=["paper", "default"], choices=["paper", "default"])
     parser.add_argument("--algos", nargs="+", default=["dqn", "ppo"], choices=["dqn", "ppo"])
-    parser.add_argument("--eval-points", type=int, default=50, help="greedy evaluations per run (convergence resolution)")
+    parser.add_argument("--eval-points", type=int, default=50,
+                        help="greedy evaluations per run (the convergence step's resolution)")
     args = parser.parse_args(argv)
     n_seeds = common.check_seeds(args.seeds, 8, args.quick)
     out = Path(args.out)
@@ -96,7 +97,8 @@ def main(argv: list[str] | None = None) -> int:
         row = [name] + [cell(key, res, args.ci) for res in results.values()]
         row += [STUDY[a].get(name, "") for a in studies]
         rows.append(row)
-    budget = ["Env steps per seed"] + [f"{timings[lab].env_steps_per_runner:,}" for lab in results] + ["" for _ in studies]
+    budget = ["Env steps per seed"] + [f"{timings[lab].env_steps_per_runner:,}" for lab in results]
+    budget += ["" for _ in studies]
     wall = ["Compile / train (s)"] + [f"{timings[lab].compile_seconds:.1f} / {timings[lab].train_seconds:.1f}"
                                       for lab in results] + ["" for _ in studies]
     rows += [budget, wall]
