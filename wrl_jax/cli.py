@@ -123,6 +123,12 @@ class RunOptions:
     """write learning_curve.png"""
     xla_opt_level: int = DEFAULT_XLA_OPT_LEVEL
     """XLA CPU backend optimization level (-1: XLA's default)"""
+    devices: int = 1
+    """shard the seeds over this many devices (0: all, every host's; 1: no sharding); docs/scale.md"""
+    env_shards: int = 1
+    """of those devices, how many split each seed's environments"""
+    distributed: bool = False
+    """multi-host: call jax.distributed.initialize first (WRL_COORDINATOR, WRL_NUM_PROCESSES, WRL_PROCESS_ID)"""
 
     def seeds(self) -> list[int]:
         return list(range(self.seed, self.seed + self.num_seeds))
@@ -237,6 +243,8 @@ def validate(command: Command) -> None:
         raise ValueError(f"--stop-after must be a positive number of updates, got {run.stop_after}")
     if run.resume and run.overwrite:
         raise ValueError("--resume and --overwrite contradict each other")
+    if run.devices < 0 or run.env_shards < 1:
+        raise ValueError(f"--devices must be >= 0 (0: all) and --env-shards >= 1, got {run.devices}, {run.env_shards}")
     command.config.validate()
     if run.out is None:
         stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
@@ -289,6 +297,10 @@ def train(command: Command) -> dict[str, Any]:
     if not run.resume and (out / checkpoint.CHECKPOINT_NAME).exists() and not run.overwrite:
         raise ValueError(f"{out} already holds a run; pass --resume to continue it or --overwrite to start over")
     apply_xla_opt_level(run.xla_opt_level)
+    if run.distributed:
+        from wrl_jax import sharding
+
+        sharding.initialize_distributed()
     algo = build(spec, command.config, command.env)
     loop = training.LoopConfig(
         chunk_updates=run.chunk_updates,
@@ -297,7 +309,16 @@ def train(command: Command) -> dict[str, Any]:
         checkpoint_every=run.checkpoint_every,
         progress=run.progress,
     )
-    trainer = training.Trainer(algo, run.seeds(), loop)
+    if run.devices != 1 or run.env_shards != 1 or run.distributed:
+        from wrl_jax import sharding
+
+        # Multi-host: every host's devices unless --devices says otherwise.
+        devices = 0 if run.distributed and run.devices == 1 else run.devices
+        mesh = sharding.make_mesh(devices, run.env_shards)
+        trainer = sharding.ShardedTrainer(algo, run.seeds(), loop, mesh)
+        print(f"sharding over {sharding.describe(mesh)}", file=sys.stderr)
+    else:
+        trainer = training.Trainer(algo, run.seeds(), loop)
     out.mkdir(parents=True, exist_ok=True)
     metadata = {
         "algo": spec.name,

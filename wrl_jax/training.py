@@ -262,6 +262,13 @@ class Trainer:
         metrics = {k: np.asarray(v)[:ran] for k, v in jax.device_get(metrics).items()}
         return runners, metrics, latest
 
+    def host_state(self, runners: Any) -> Any:
+        """The runner state in a form every process can read for a checkpoint (here: as is).
+
+        ``wrl_jax.sharding.ShardedTrainer`` gathers state split across hosts.
+        """
+        return runners
+
     # ------------------------------------------------------------- evaluation
     def evaluate(self, runners: Any) -> evaluation.EpisodeEval:
         """Greedy episodes of every seed on every item (leaves ``(seeds, K_max)``), compiled separately."""
@@ -453,7 +460,7 @@ def run(
             writer.sync()
         checkpoint.save(
             out,
-            runners,
+            trainer.host_state(runners),
             {
                 **run_meta,
                 "updates_done": updates_done,
