@@ -93,6 +93,11 @@ def hyper_for(algo: Any, config: Any) -> Any:
     return type(template)(**values)
 
 
+def _cli_value(value: Any) -> str:
+    """A value as ``--set`` takes it (tuples as ``64,64``)."""
+    return ",".join(str(v) for v in value) if isinstance(value, tuple) else str(value)
+
+
 @dataclasses.dataclass
 class Sweep:
     """A validated sweep: every grid point's config and env params, batched for one program.
@@ -148,7 +153,7 @@ class Sweep:
                     raise StaticFieldError(
                         f"{self.spec.name} field {name!r} is static (it fixes array shapes or the program's "
                         f"structure), so it cannot be a vmap axis of one program: run one sweep per value, "
-                        f"e.g. --set {name}={values[0]}. Traced fields that can be swept: "
+                        f"e.g. --set {name}={_cli_value(values[0])}. Traced fields that can be swept: "
                         f"{list(self.algo_fields) + list(ENV_FIELDS)}"
                     )
                 raise ValueError(
