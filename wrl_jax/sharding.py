@@ -147,9 +147,10 @@ class ShardedTrainer(training.Trainer):
         self.specs = runner_specs(template, self.num_envs)
         self.runner_shardings = jax.tree.map(lambda spec: NamedSharding(self.mesh, spec), self.specs)
         self.replicated = NamedSharding(self.mesh, P())
-        # The seed axis is split *manually* (shard_map): every device runs exactly the
-        # program of an unsharded batch of its seeds, so the results are those of
-        # len(seeds) / devices-sized batches trained apart, bit for bit. The
+        # The seed axis is split *manually* (shard_map): every device runs the program
+        # of an unsharded batch of its seeds, so the results are those of
+        # len(seeds) / devices-sized batches trained apart (bit for bit for PPO; to
+        # an ulp for DQN, see the module docstring). The
         # environment axis stays *automatic*: XLA's SPMD partitioner splits each
         # device's environment batch further and adds the collectives. Inputs and
         # outputs are pinned to the same layout, so the state stays put between
