@@ -132,12 +132,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", nargs="+", type=int, default=[1, 8, 32, 128])
     parser.add_argument("--ppo-updates", type=int, default=8, help="PPO updates per seed (2,048 env steps each)")
     parser.add_argument("--dqn-updates", type=int, default=250, help="DQN updates per seed (32 env steps each)")
-    parser.add_argument("--dqn-paper-updates", type=int, default=500, help="paper-preset DQN updates (4 env steps each)")
+    parser.add_argument("--dqn-paper-updates", type=int, default=500,
+                        help="paper-preset DQN updates (4 env steps each)")
     parser.add_argument("--loop-max", type=int, default=32, help="longest one-by-one loop actually run")
     parser.add_argument("--out", default=str(RESULTS / "seed_scaling"), help="output path without extension")
     args = parser.parse_args(argv)
-    if any(n < 1 for n in args.seeds) or args.loop_max < 1 or min(args.ppo_updates, args.dqn_updates, args.dqn_paper_updates) < 1:
-        parser.error("--seeds, --loop-max, --ppo-updates and --dqn-updates must be positive")
+    budgets = (args.loop_max, args.ppo_updates, args.dqn_updates, args.dqn_paper_updates)
+    if any(n < 1 for n in args.seeds) or min(budgets) < 1:
+        parser.error("--seeds, --loop-max and the update budgets must be positive")
 
     configs = bench_configs(args.ppo_updates, args.dqn_updates, args.dqn_paper_updates)
     results: dict = {

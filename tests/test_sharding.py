@@ -80,7 +80,8 @@ out["seed_sharded_equals_halves_bitwise"] = bitwise(leaves(sharded.runners), joi
 metrics = {k: np.concatenate([np.asarray(halves[0][1][k]), np.asarray(halves[1][1][k])]) for k in halves[0][1]}
 out["rows"] = len(sharded.rows)
 out["rows_equal_halves_bitwise"] = all(
-    np.array_equal(row[k], metrics[k][seeds.index(row["seed"]), row["update"] - 1]) for row in sharded.rows for k in metrics)
+    np.array_equal(row[k], metrics[k][seeds.index(row["seed"]), row["update"] - 1])
+    for row in sharded.rows for k in metrics)
 whole = train(training.seed_keys(seeds))
 out["seed_sharded_vs_one_device_max_diff"] = max_diff(leaves(sharded.runners), leaves(whole[0]))
 out["keys_equal"] = bitwise(leaves(sharded.runners.key), leaves(whole[0].key))

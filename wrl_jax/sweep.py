@@ -377,7 +377,9 @@ def results_markdown(result: SweepResult) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for p in result.per_point:
         conv = p["converged_seeds"]
-        first = "none" if conv == 0 else f"{_fmt_ci(p['first_optimal_step'], p['first_optimal_step_ci95'], digits=0)} ({conv}/{n})"
+        first = "none"
+        if conv:
+            first = f"{_fmt_ci(p['first_optimal_step'], p['first_optimal_step_ci95'], digits=0)} ({conv}/{n})"
         cells = [_fmt(p[f]) for f in sweep.fields] + [
             _fmt_ci(p["success_rate"], p["success_rate_ci95"], percent=True),
             _fmt_ci(p["optimal_rate"], p["optimal_rate_ci95"], percent=True),
@@ -646,7 +648,8 @@ def main(argv: list[str] | None = None) -> int:
     command = "python -m wrl_jax.sweep " + " ".join(argv)
     write_outputs(result, out, command, plot=not args.no_plot)
     print(results_markdown(result))
-    print(f"outputs in {out}/ (results.md, results.csv, results.json, metrics.csv{'' if args.no_plot else ', sweep.png'})")
+    plot_name = "" if args.no_plot else ", sweep.png"
+    print(f"outputs in {out}/ (results.md, results.csv, results.json, metrics.csv{plot_name})")
     return 0
 
 
