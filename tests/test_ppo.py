@@ -18,9 +18,14 @@ from wrl_jax.agents.ppo import PPO, PPOConfig
 
 @pytest.mark.slow
 def test_learns_8x8_to_every_item_at_the_optimum():
-    """Two seeds of a small PPO deliver all 10 items of 8x8, at the BFS optimum (14.0 steps)."""
+    """Two seeds of a small PPO deliver all 10 items of 8x8, at the BFS optimum (14.0 steps).
+
+    The budget has a margin: at 61,440 steps 24 of 24 seeds (0-23) put every item at the
+    optimum; at 40,960 one seed in eight still drove one item 2 steps too far, so the
+    test's outcome depended on the last bits of this CPU's arithmetic.
+    """
     env, params = wrl_jax.make("Warehouse-8x8-v0")
-    config = dataclasses.replace(ppo.DEFAULT, num_envs=16, hidden_sizes=(32, 32), total_timesteps=40_960)
+    config = dataclasses.replace(ppo.DEFAULT, num_envs=16, hidden_sizes=(32, 32), total_timesteps=61_440)
     trainer = training.Trainer(PPO(config, env, params), [0, 1], training.LoopConfig(eval_every=0, progress=False))
     result = training.run(trainer)
     summary = evaluation.summarize(training.final_evaluation(trainer, result), trainer.seeds)

@@ -60,11 +60,18 @@ def make_train(algo: Algorithm, num_updates: int | None = None) -> Callable[...,
     algorithm's full run by default). ``metrics`` leaves have a leading update
     axis. Pure: ``jax.jit`` it, or ``jax.vmap`` it over keys (:func:`make_train_seeds`)
     and over traced hyperparameters for a sweep.
+
+    The initial runner passes through an optimization barrier: without it XLA
+    fuses the initialisation arithmetic into the first update, and on CPUs
+    with FMA/AVX-512 the contracted multiply-adds round differently from the
+    chunked driver (which initialises in its own program), so the two would
+    differ in the last bits. With it, this one program equals the driver bit
+    for bit (``tests/test_training.py``).
     """
     num_updates = algo.num_updates if num_updates is None else int(num_updates)
 
     def train(key: jax.Array, hyper: Any = None, env_params: Any = None):
-        runner = algo.init(key, hyper, env_params)
+        runner = jax.lax.optimization_barrier(algo.init(key, hyper, env_params))
         return jax.lax.scan(algo.update, runner, jnp.arange(num_updates, dtype=jnp.int32))
 
     return train
