@@ -257,7 +257,7 @@ def main() -> int:
     import torch
 
     from wrl_jax.agents.dqn import PRESETS, make_algorithm
-    from wrl_jax.agents.networks import CPU_MATMUL_PEAK_GFLOPS
+    from wrl_jax.agents.networks import measured_matmul_peak_gflops
 
     config = PRESETS[args.preset]
     if args.total_timesteps is not None:
@@ -278,7 +278,7 @@ def main() -> int:
         "flops_per_update_per_seed": algo.flops_per_update(),
         "gradient_flops_per_update_per_seed": algo.gradient_flops_per_update(),
         "num_updates": algo.num_updates,
-        "cpu_peak_gflops": CPU_MATMUL_PEAK_GFLOPS,
+        "cpu_peak_gflops": measured_matmul_peak_gflops(),
         "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(), "load_at_start": load_average()},
         "versions": {"jax": jax.__version__, "torch": torch.__version__},
         "command": "python bench/sb3_dqn.py " + " ".join(sys.argv[1:]),

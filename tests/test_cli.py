@@ -41,6 +41,8 @@ def test_a_run_writes_every_output(finished_run, capsys):
     assert summary["algo"] == "ppo" and summary["env"] == "Warehouse-8x8-v0" and summary["num_seeds"] == 2
     assert summary["seeds"] == [5, 6] and summary["finished"] and summary["updates_done"] == 6
     assert summary["env_steps_per_second"] > 0 and summary["compile_seconds"] > 0
+    # FLOP accounting: achieved GFLOP/s against this machine's matmul peak, measured in the run.
+    assert 0 < summary["achieved_gflops"] < summary["cpu_peak_gflops"] < 1e5
     assert summary["eval"]["optimal_mean_steps"] == 14.0
     rows = summary["eval"]["rows"]
     assert len(rows) == 2 * 10 and {r["seed"] for r in rows} == {5, 6}

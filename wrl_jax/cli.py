@@ -289,7 +289,7 @@ def train(command: Command) -> dict[str, Any]:
     import numpy as np
 
     from wrl_jax import checkpoint, evaluation, metrics_io, training
-    from wrl_jax.agents.networks import CPU_MATMUL_PEAK_GFLOPS
+    from wrl_jax.agents.networks import measured_matmul_peak_gflops
 
     wall_start = time.perf_counter()
     load_at_start = _cpu_info()
@@ -379,7 +379,7 @@ def train(command: Command) -> dict[str, Any]:
         "achieved_gflops": (flops * result.updates_done * len(trainer.seeds) / result.train_seconds / 1e9)
         if flops and result.train_seconds > 0
         else None,
-        "cpu_peak_gflops": CPU_MATMUL_PEAK_GFLOPS,
+        "cpu_peak_gflops": measured_matmul_peak_gflops() if flops else None,  # measured after training
         "convergence": {
             "first_optimal_step": first_steps,
             "stable_optimal_step": stable_steps,
@@ -410,7 +410,12 @@ def report(summary: dict[str, Any]) -> str:
         f"{summary['env_steps_per_seed']:,} env steps ({summary['updates_done']}/{summary['num_updates']} updates)",
         f"compile {summary['compile_seconds']:.1f} s | train {summary['train_seconds']:.1f} s | "
         f"{(sps or 0) / 1e3:,.0f}k env steps/s (all seeds)"
-        + (f" | {gflops:.1f} GFLOP/s of {summary['cpu_peak_gflops']:.0f} peak" if gflops else "")
+        + (
+            f" | {gflops:.1f} GFLOP/s = {gflops / summary['cpu_peak_gflops']:.0%} of this machine's "
+            f"{summary['cpu_peak_gflops']:.0f} GFLOP/s matmul"
+            if gflops
+            else ""
+        )
         + f" | wall {summary['wall_seconds']:.1f} s",
         "",
         summary["_table"],

@@ -86,7 +86,7 @@ class Algorithm(abc.ABC, Generic[RunnerT]):
         """Floating-point operations one update of one seed costs (network passes), if known.
 
         Optional: the CLI divides it by the measured time to report achieved
-        GFLOP/s against ``networks.CPU_MATMUL_PEAK_GFLOPS``.
+        GFLOP/s against ``networks.measured_matmul_peak_gflops()``.
         """
         return None
 

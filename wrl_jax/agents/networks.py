@@ -1,4 +1,4 @@
-"""The networks of both algorithms: a plain MLP, and its FLOP count.
+"""The networks of both algorithms: a plain MLP, its FLOP count, and the machine's matmul peak.
 
 PPO uses two of them (actor and critic), DQN one (the Q-network). Orthogonal
 initialization with per-layer scales follows common PPO practice; a small
@@ -7,11 +7,14 @@ output scale makes a fresh policy near-uniform.
 
 from __future__ import annotations
 
+import functools
 import math
+import time
 from collections.abc import Callable, Sequence
 
 import flax.linen as nn
 import jax
+import jax.numpy as jnp
 
 ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {"relu": nn.relu, "tanh": nn.tanh}
 
@@ -52,7 +55,24 @@ def mlp_forward_flops(input_size: int, hidden_sizes: Sequence[int], output_size:
     return sum(2 * a * b for a, b in zip(widths[:-1], widths[1:]))
 
 
-CPU_MATMUL_PEAK_GFLOPS = 180.0
-"""Measured float32 matmul throughput of the 2-core development CPU (JAX 0.10.2,
-a 2048x2048 and an 8192x256x256 matmul both reach about 180 GFLOP/s). The
-yardstick for "how close is training to what this CPU can do"."""
+@functools.cache
+def measured_matmul_peak_gflops(size: int = 2048, repeats: int = 5) -> float:
+    """Float32 matmul throughput of JAX's default device, measured now (best of ``repeats``).
+
+    The yardstick for "how close does training come to what this machine can
+    do": a large square matmul is the fastest this machine runs the networks'
+    arithmetic. Measured, not a constant, because the same code runs on CPUs
+    whose peaks differ several times (about 180 GFLOP/s on the project's first
+    2-core development CPU, about 450 on its AVX-512 successor), and measured
+    in the same process as the run it is compared with, under the same load.
+    Costs about 0.3 s on 2 cores; cached per process.
+    """
+    a = jnp.ones((size, size), jnp.float32)
+    matmul = jax.jit(jnp.matmul)
+    matmul(a, a).block_until_ready()
+    best = math.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        matmul(a, a).block_until_ready()
+        best = min(best, time.perf_counter() - start)
+    return 2 * size**3 / best / 1e9
