@@ -63,7 +63,7 @@ def measured_matmul_peak_gflops(size: int = 2048, repeats: int = 5) -> float:
     do": a large square matmul is the fastest this machine runs the networks'
     arithmetic. Measured, not a constant, because the same code runs on CPUs
     whose peaks differ several times (about 180 GFLOP/s on the project's first
-    2-core development CPU, about 450 on its AVX-512 successor), and measured
+    2-core development CPU, about 475 on its AVX-512 successor), and measured
     in the same process as the run it is compared with, under the same load.
     Costs about 0.3 s on 2 cores; cached per process.
     """
