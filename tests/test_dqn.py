@@ -5,6 +5,7 @@ Compiles are the cost here, so the tests share a few small programs
 """
 
 import dataclasses
+import functools
 import json
 import os
 import subprocess
@@ -169,7 +170,7 @@ def test_truncated_transition_stores_the_observation_before_the_reset(small_env)
     algo = DQN(config, env, params)
     runner = algo.init(jax.random.PRNGKey(3))
     step = jax.jit(algo._env_step)
-    step_env = jax.jit(jax.vmap(env.step_env, in_axes=(0, 0, None)))
+    step_env = jax.jit(jax.vmap(functools.partial(env.transition, None), in_axes=(0, 0, None)))
     rows = []
     for t in range(12):
         before = runner.env_state

@@ -48,15 +48,15 @@ def test_reset_observation(env_and_params):
 def test_pick_and_deliver_rewards():
     env, params = small()
     _, state = env.reset_to_item(0, params)
-    obs, state, reward, term, trunc, info = env.step_env(state, RIGHT, params)
+    obs, state, reward, term, trunc, info = env.transition(None, state, RIGHT, params)
     assert float(reward) == -0.5 + 2.0  # one step closer to the item
-    obs, state, reward, term, trunc, info = env.step_env(state, RIGHT, params)
+    obs, state, reward, term, trunc, info = env.transition(None, state, RIGHT, params)
     assert bool(info["picked_up"]) and bool(state.carrying)
     assert float(reward) == -0.5 + 2.0 + 50.0
     assert obs[4] == obs[5] == np.float32(-1.0) / np.float32(2.0) and obs[6] == 1.0
-    obs, state, reward, term, trunc, info = env.step_env(state, DOWN, params)
+    obs, state, reward, term, trunc, info = env.transition(None, state, DOWN, params)
     assert float(reward) == -0.5 + 2.0 and not bool(term)
-    obs, state, reward, term, trunc, info = env.step_env(state, DOWN, params)
+    obs, state, reward, term, trunc, info = env.transition(None, state, DOWN, params)
     assert bool(term) and not bool(trunc) and bool(info["delivered"])
     assert float(reward) == 2.0 + 200.0  # no step penalty on the terminating transition
     assert obs[6] == 1.0 and obs[4] == np.float32(-0.5)  # final obs still shows the item carried
@@ -65,11 +65,11 @@ def test_pick_and_deliver_rewards():
 def test_collision_and_wall_bump():
     env, params = small()
     _, state = env.reset_to_item(0, params)
-    _, state, reward, _, _, info = env.step_env(state, UP, params)
+    _, state, reward, _, _, info = env.transition(None, state, UP, params)
     assert bool(info["wall_bump"]) and not bool(info["collision"])
     assert float(reward) == -0.5 and tuple(state.pos) == (0, 0)
-    _, state, _, _, _, _ = env.step_env(state, DOWN, params)
-    _, state, reward, _, _, info = env.step_env(state, RIGHT, params)  # into the shelf at (1,1)
+    _, state, _, _, _, _ = env.transition(None, state, DOWN, params)
+    _, state, reward, _, _, info = env.transition(None, state, RIGHT, params)  # into the shelf at (1,1)
     assert bool(info["collision"]) and tuple(state.pos) == (1, 0)
     # target is the item at (0,2): distance unchanged, so -0.5 - 10
     assert float(reward) == -10.5
@@ -78,15 +78,15 @@ def test_collision_and_wall_bump():
 def test_wall_penalty_parameter():
     env, params = wrl_jax.make_from_layout("S.0\n.#.\n..G", max_steps=5, wall_penalty=-3.0)
     _, state = env.reset_to_item(0, params)
-    _, _, reward, _, _, _ = env.step_env(state, LEFT, params)
+    _, _, reward, _, _, _ = env.transition(None, state, LEFT, params)
     assert float(reward) == -3.5
 
 
 def test_collision_bug_puts_robot_on_the_shelf():
     env, params = wrl_jax.make_from_layout("S.0\n.#.\n..G", max_steps=5, collision_bug=True)
     _, state = env.reset_to_item(0, params)
-    _, state, _, _, _, _ = env.step_env(state, DOWN, params)
-    _, state, reward, _, _, info = env.step_env(state, RIGHT, params)
+    _, state, _, _, _, _ = env.transition(None, state, DOWN, params)
+    _, state, reward, _, _, info = env.transition(None, state, RIGHT, params)
     assert bool(info["collision"]) and tuple(state.pos) == (1, 1)
     # shaping now sees the shelf cell: one step closer to the item at (0,2)
     assert float(reward) == -0.5 - 10.0 + 2.0
@@ -96,7 +96,7 @@ def test_truncation_and_time():
     env, params = small()
     _, state = env.reset_to_item(0, params)
     for t in range(1, 6):
-        _, state, _, term, trunc, _ = env.step_env(state, UP, params)
+        _, state, _, term, trunc, _ = env.transition(None, state, UP, params)
         assert int(state.time) == t and not bool(term)
         assert bool(trunc) == (t == 5)
 
@@ -105,7 +105,7 @@ def test_delivery_on_last_step_is_terminated_not_truncated():
     env, params = wrl_jax.make_from_layout("S.0\n.#.\n..G", max_steps=4)
     _, state = env.reset_to_item(0, params)
     for action in (RIGHT, RIGHT, DOWN, DOWN):
-        _, state, _, term, trunc, _ = env.step_env(state, action, params)
+        _, state, _, term, trunc, _ = env.transition(None, state, action, params)
     assert bool(term) and not bool(trunc)
 
 
@@ -141,7 +141,7 @@ def test_bad_action_and_item_index_raise():
     _, state = env.reset_to_item(0, params)
     for bad in (4, -1, 1.5, 2.0, True, "up", 10**20):
         with pytest.raises(ValueError, match="action"):
-            env.step_env(state, bad, params)
+            env.transition(None, state, bad, params)
     with pytest.raises(ValueError, match="item_index 3 is out of range"):
         env.reset_to_item(3, params)
 
@@ -177,14 +177,18 @@ def test_same_program_serves_every_layout_of_a_size():
     other = "S . . . . . . .\n. # # # # # # .\n. 0 . . . . . .\n. . . . . . . .\n" \
             ". . . . . . . .\n. . . . . . . .\n. 1 . . . . . .\n. . . . . . . G"
     env_b, params_b = wrl_jax.make_from_layout(other, max_steps=150, max_items=10)
-    assert env_a == env_b
+    # Same static configuration; they differ only in their default params (the
+    # layout ``params=None`` means), so they are not interchangeable as jit
+    # static arguments, but one program serves both layouts' params.
+    assert env_a.static_config() == env_b.static_config()
+    assert env_a != env_b and env_a.default_params is params_a and env_b.default_params is params_b
     traces = []
 
     @jax.jit
     def first_step(params):
         traces.append(1)
         _, state = env_a.reset_to_item(1, params)
-        return env_a.step_env(state, DOWN, params)[0]
+        return env_a.transition(None, state, DOWN, params)[0]
 
     first_step(params_a)
     obs_b = first_step(params_b)
@@ -206,7 +210,7 @@ def test_oracle_delivers_every_item_optimally(name):
         def body(carry, _):
             state, done, ret, steps, collisions = carry
             action = routes.oracle_action(state, params, tables)
-            _, nxt, reward, term, _, info = env.step_env(state, action, params)
+            _, nxt, reward, term, _, info = env.transition(None, state, action, params)
             live = ~done
             state = jax.tree.map(lambda a, b: jnp.where(live, a, b), nxt, state)
             return (state, done | term, ret + jnp.where(live, reward, 0.0), steps + live,

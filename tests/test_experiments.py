@@ -14,7 +14,7 @@ import pytest
 from wrl_jax import evaluation
 from wrl_jax.experiments import common, failure_modes, forgetting, media, scale, sensitivity, table3
 from wrl_jax.experiments.configs import ENV_8, Setting, build
-from wrl_jax.registry import make
+from wrl_jax.core.registry import make
 
 
 # ------------------------------------------------------------------ CI helper
@@ -136,10 +136,10 @@ def test_stage_blind_observation_hides_the_stage():
     assert env != plain and env.obs_size == 6
     obs0, state = env.reset_to_item(1, params)  # item 1 at (1, 3): right x3, down x1
     for action in (3, 3, 3, 1):
-        obs, state, *_ = env.step_env(state, action, params)
+        obs, state, *_ = env.transition(None, state, action, params)
     assert bool(state.carrying)
     np.testing.assert_array_equal(np.asarray(obs[4:6]), np.asarray(obs0[4:6]))  # item coordinates unchanged
-    plain_obs, _, *_ = plain.step_env(state.replace(carrying=False, pos=jnp.array([1, 2])), 3, params)
+    plain_obs, _, *_ = plain.transition(None, state.replace(carrying=False, pos=jnp.array([1, 2])), 3, params)
     assert float(plain_obs[4]) < 0  # the plain observation blanks them after pickup
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 
 import gymnasium as gym
@@ -69,7 +70,7 @@ def test_gymnasium_env_checker(env_id, observe_carrying):
 
 # -------------------------------------------------------------- single env parity
 def _jax_transitions(env, params):
-    return jax.jit(env.step_env), jax.jit(env.reset_to_item)
+    return jax.jit(functools.partial(env.transition, None)), jax.jit(env.reset_to_item)
 
 
 @pytest.mark.parametrize("name, max_steps", [("Warehouse-8x8-v0", 40), ("Warehouse-12x12-v0", 60)])

@@ -102,7 +102,7 @@ def test_robot_on_goal_keeps_goal_visible(warehouse8):
 def test_frames_change_when_the_robot_moves(warehouse8):
     env, params = warehouse8
     _, state = env.reset_to_item(3, params)
-    _, moved, *_ = env.step_env(state, 1, params)  # down to (1, 0)
+    _, moved, *_ = env.transition(None, state, 1, params)  # down to (1, 0)
     before, after = np.asarray(render(state, params, CELL)), np.asarray(render(moved, params, CELL))
     changed = np.any(before != after, axis=-1)
     assert colour_at(after, (1, 0)) == COLORS["robot"]
@@ -117,7 +117,7 @@ def test_frames_change_when_the_robot_moves(warehouse8):
 def test_timer_bar_tells_a_blocked_step_from_the_state_before(warehouse8):
     env, params = warehouse8
     _, state = env.reset_to_item(3, params)
-    _, bumped, *_ = env.step_env(state, 0, params)  # up from (0, 0): a wall bump, the robot stays
+    _, bumped, *_ = env.transition(None, state, 0, params)  # up from (0, 0): a wall bump, the robot stays
     assert np.array_equal(bumped.pos, state.pos)
     # With the frame at least max_steps = 150 pixels wide, every step grows the bar.
     frames = [np.asarray(render(state.replace(time=jnp.int32(t)), params, 32)) for t in range(151)]

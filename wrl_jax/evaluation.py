@@ -118,7 +118,7 @@ def _greedy_episode(greedy_action: GreedyFn, network_params: Any, env: Warehouse
     def body(carry):
         obs, state, _, _, ret, collisions, bumps, pickup_step = carry
         action = greedy_action(network_params, obs)
-        next_obs, next_state, reward, terminated, truncated, info = env.step_env(state, action, params)
+        next_obs, next_state, reward, terminated, truncated, info = env.transition(None, state, action, params)
         pickup_step = jnp.where(info["picked_up"], next_state.time, pickup_step)
         return (
             next_obs,

@@ -1,27 +1,11 @@
-"""The two layouts of the study, exactly as SPEC.md draws them."""
+"""Moved to :mod:`wrl_jax.envs.warehouse.maps`; this alias keeps ``import wrl_jax.maps`` working.
 
-WAREHOUSE_8X8 = """
-S . . . . . 0 .
-. . . 1 . . . .
-. # # # . . 9 .
-. 2 . 3 . . . .
-5 . . . . 4 . .
-. . . . # # . .
-. . 6 . . 7 . .
-. 8 . . . . . G
+The old module name is bound to the new module itself (not a copy), so private
+names, monkeypatching and ``isinstance`` checks behave exactly as before.
 """
 
-WAREHOUSE_12X12 = """
-S . . . 0 . . . . . 5 .
-. . . . . . . . . . . .
-. 1 . . . . . 6 . . . .
-. # # # # # # # # . 7 .
-2 . . . . 3 . . . . . .
-. . 4 . . . 8 . . . . 9
-. a . # # # # # # # # .
-. . . . . . . . . f . .
-. . . . b . g . . . . .
-. # # # # # # # . . h .
-c . . d . . . i . . . .
-. . . . . e . . . j . G
-"""
+import sys
+
+from wrl_jax.envs.warehouse import maps as _moved
+
+sys.modules[__name__] = _moved

@@ -13,7 +13,7 @@ from typing import Any
 
 from wrl_jax.agents import dqn, ppo
 from wrl_jax.env import Warehouse
-from wrl_jax.registry import make
+from wrl_jax.core.registry import make
 from wrl_jax.types import EnvParams
 
 ENV_8 = "Warehouse-8x8-v0"

@@ -38,7 +38,7 @@ from wrl_jax import evaluation
 from wrl_jax.env import Warehouse
 from wrl_jax.experiments import common, forgetting
 from wrl_jax.experiments.configs import ENV_8, Setting, build
-from wrl_jax.registry import make
+from wrl_jax.core.registry import make
 from wrl_jax.types import EnvParams, EnvState
 
 BASE = Setting("dqn", "default", ENV_8)
@@ -55,21 +55,20 @@ class StageBlindWarehouse(Warehouse):
     are :class:`Warehouse`'s.
     """
 
-    def __init__(self, size: int, max_items: int):
-        super().__init__(size, max_items, observe_carrying=False)
+    # Not equal to a plain Warehouse of the same shapes (the base class compares
+    # types), so jit caches keyed on the env never mix the two.
+    def __init__(self, size: int, max_items: int, default_params: EnvParams | None = None):
+        super().__init__(size, max_items, observe_carrying=False, default_params=default_params)
 
-    def _key(self) -> tuple:
-        # Not equal to a plain Warehouse of the same shapes: jit caches keyed on the env must not mix them.
-        return ("stage_blind", *super()._key())
-
-    def observe(self, state: EnvState, params: EnvParams) -> jax.Array:
+    def get_obs(self, state: EnvState, params: EnvParams | None = None, key: jax.Array | None = None) -> jax.Array:
+        params = self.default_params if params is None else params
         table = jnp.asarray(self._coordinate_table)
         return jnp.concatenate([table[state.pos + 1], table[params.goal + 1], table[state.item_pos + 1]])
 
 
 def stage_blind(env_name: str = ENV_8, **overrides) -> tuple[StageBlindWarehouse, EnvParams]:
     base, params = make(env_name, observe_carrying=False, **overrides)
-    return StageBlindWarehouse(base.size, base.max_items), params
+    return StageBlindWarehouse(base.size, base.max_items, default_params=params), params
 
 
 # Each group: (observation, {variant label: env overrides}). Labels say what is *removed*.

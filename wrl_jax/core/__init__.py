@@ -1,0 +1,1 @@
+"""What every environment family shares: the gymnax base, the registry, grid mechanics."""

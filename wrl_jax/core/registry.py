@@ -1,0 +1,90 @@
+"""Environment names -> factories, for ``wrl_jax.make`` and ``gymnax.make`` alike.
+
+A family registers each of its named environments once, with a factory
+``factory(**overrides) -> (env, params)`` given as a ``"module:function"``
+path, so nothing is imported until a name is made. Every name is also
+registered with gymnax's own registry as ``"wrl_jax/<name>"`` (gymnax refuses
+an id twice, so registration checks first and re-imports are harmless).
+
+The one place that lists the built-in names is :mod:`wrl_jax.envs`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+from collections.abc import Callable
+from typing import Any
+
+GYMNAX_PREFIX = "wrl_jax/"
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvEntry:
+    """A registered environment name.
+
+    Attributes:
+        name: e.g. ``"Warehouse-12x12-v0"``.
+        factory: ``"package.module:function"``; the function takes keyword
+            overrides and returns ``(env, params)`` with ``env.default_params is params``.
+        family: the family folder (``"warehouse"``, ``"fleet"``, ...), for docs and listings.
+        kwargs: fixed keyword arguments passed to the factory before the user's overrides.
+    """
+
+    name: str
+    factory: str
+    family: str
+    kwargs: tuple[tuple[str, Any], ...] = ()
+
+    def load(self) -> Callable[..., tuple[Any, Any]]:
+        module_name, function_name = self.factory.split(":")
+        return getattr(importlib.import_module(module_name), function_name)
+
+
+_REGISTRY: dict[str, EnvEntry] = {}
+
+
+def register(name: str, factory: str, *, family: str, **kwargs: Any) -> None:
+    """Register ``name`` (idempotent for an identical entry; a different one is an error)."""
+    entry = EnvEntry(name=name, factory=factory, family=family, kwargs=tuple(sorted(kwargs.items())))
+    existing = _REGISTRY.get(name)
+    if existing is not None and existing != entry:
+        raise ValueError(f"environment {name!r} is already registered as {existing}")
+    _REGISTRY[name] = entry
+    _register_with_gymnax(name)
+
+
+def registered_names(family: str | None = None) -> list[str]:
+    return sorted(name for name, entry in _REGISTRY.items() if family is None or entry.family == family)
+
+
+def entry(name: str) -> EnvEntry:
+    if name.startswith(GYMNAX_PREFIX):
+        name = name[len(GYMNAX_PREFIX):]
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown environment {name!r}; registered: {', '.join(registered_names())}")
+    return _REGISTRY[name]
+
+
+def make(name: str, **overrides: Any) -> tuple[Any, Any]:
+    """Build a registered environment: ``(env, params)``; ``env.default_params`` are those params.
+
+    ``name`` may carry gymnax's ``"wrl_jax/"`` prefix. Overrides are the
+    family's (reward constants, ``max_steps``, ``num_robots``, ...); an
+    unknown one is a ``ValueError`` from the family's factory.
+    """
+    found = entry(name)
+    return found.load()(**{**dict(found.kwargs), **overrides})
+
+
+def _register_with_gymnax(name: str) -> None:
+    import gymnax
+
+    gymnax_id = GYMNAX_PREFIX + name
+    if gymnax_id in gymnax.registered_envs:
+        return
+
+    def factory(**overrides: Any):
+        return make(name, **overrides)[0]
+
+    gymnax.register(gymnax_id, factory)
