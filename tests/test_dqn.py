@@ -143,8 +143,8 @@ def test_target_bootstraps_through_truncation():
     class TruncationAsTermination(DQN):
         """The mistake this test guards against."""
 
-        def _step_and_reset(self, state, action, next_item, env_params):
-            obs, st, reward, terminated, truncated, info = super()._step_and_reset(state, action, next_item, env_params)
+        def _step_envs(self, key, state, action, env_params):
+            obs, st, reward, terminated, truncated, info = super()._step_envs(key, state, action, env_params)
             return obs, st, reward, terminated | truncated, jnp.zeros_like(truncated), info
 
     start_obs, _ = env.reset_to_item(0, params)

@@ -13,6 +13,7 @@ import pytest
 import wrl_jax
 from wrl_jax import sweep as sw
 from wrl_jax import training
+from wrl_jax.stats import mean_half_width
 from wrl_jax.agents.dqn import DQN, DQNConfig
 from wrl_jax.agents.ppo import PPO, PPOConfig
 
@@ -143,11 +144,11 @@ def test_results_table_files_and_ci(ppo_sweep, tmp_path):
     assert len(csv_lines) == 17 and csv_lines[0].startswith("point,learning_rate,ent_coef,shaping_coef,seed")
 
 
-def test_mean_ci():
-    mean, half, n = sw.mean_ci([1.0, 2.0, 3.0, None])
+def test_mean_half_width():
+    mean, half, n = mean_half_width([1.0, 2.0, 3.0, None])
     assert (mean, n) == (2.0, 3) and half == pytest.approx(4.302652729911275 * 1.0 / np.sqrt(3))
-    assert sw.mean_ci([5.0]) == (5.0, None, 1)
-    assert sw.mean_ci([None, float("nan")]) == (None, None, 0)
+    assert mean_half_width([5.0]) == (5.0, None, 1)
+    assert mean_half_width([None, float("nan")]) == (None, None, 0)
 
 
 @pytest.mark.parametrize(

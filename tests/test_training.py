@@ -200,3 +200,46 @@ def test_evaluation_counts_collisions():
     assert int(result.pickup_step[1]) == 4
     assert int(result.collisions[1]) == 12 - 4
     assert float(evaluation.seed_summary(result)["eval_collision_free_rate"]) < 1.0
+
+
+def _tensorboard_scalars(run_dir, seed) -> dict[str, dict[int, float]]:
+    """The scalars TensorBoard would show for one seed: events in file order, a
+    ``SessionLog.START`` at step T hiding earlier events at steps >= T (tensorboardX's purge)."""
+    import struct as binary
+
+    from tensorboardX.proto import event_pb2
+
+    scalars: dict[str, dict[int, float]] = {}
+    for path in sorted((run_dir / metrics_io.TENSORBOARD_DIR / f"seed_{seed}").iterdir()):
+        data = path.read_bytes()
+        offset = 0
+        while offset < len(data):
+            (length,) = binary.unpack("<Q", data[offset : offset + 8])
+            event = event_pb2.Event.FromString(data[offset + 12 : offset + 12 + length])
+            offset += 12 + length + 4
+            if event.HasField("session_log") and event.session_log.status == event_pb2.SessionLog.START:
+                for steps in scalars.values():
+                    for step in [s for s in steps if s >= event.step]:
+                        del steps[step]
+            for value in event.summary.value:
+                scalars.setdefault(value.tag, {})[event.step] = value.simple_value
+    return scalars
+
+
+def test_tensorboard_events_match_the_metric_rows_across_a_resume(algo, reference, tmp_path):
+    _, ref = reference
+    trainer = training.Trainer(algo, SEEDS, training.LoopConfig(chunk_updates=2, eval_every=3, progress=False))
+    training.run(trainer, tmp_path, stop_after=3)
+    # Curves written past the checkpoint by a run that then crashed must disappear on resume.
+    from tensorboardX import SummaryWriter
+
+    # (its own file name: event files are named by the second they were opened in)
+    with SummaryWriter(str(tmp_path / metrics_io.TENSORBOARD_DIR / f"seed_{SEEDS[0]}"), filename_suffix=".stray") as stray:
+        stray.add_scalar("mean_return", 12345.0, global_step=10**6)
+    training.run(trainer, tmp_path, resume=True)
+    for seed in SEEDS:
+        shown = _tensorboard_scalars(tmp_path, seed)
+        rows = [row for row in ref.rows if row["seed"] == seed]
+        for key in ("mean_return", "episodes", "eval_optimal_rate", "policy_loss"):
+            expected = {int(r["env_steps"]): np.float32(r[key]) for r in rows if np.isfinite(r[key])}
+            assert {s: np.float32(v) for s, v in shown[key].items()} == expected, key

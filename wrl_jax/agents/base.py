@@ -25,10 +25,19 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from wrl_jax.env import Warehouse
-from wrl_jax.types import EnvParams
+from wrl_jax.core.environment import Environment
 
 RunnerT = TypeVar("RunnerT")
+
+
+def observation_size(env: Environment) -> int:
+    """Width of one flat observation, from the environment's gymnax observation space."""
+    shape = env.observation_space().shape
+    size = 1
+    for dim in shape:
+        size *= int(dim)
+    return size
+
 Metrics = dict[str, jax.Array]
 
 
@@ -40,7 +49,7 @@ class Algorithm(abc.ABC, Generic[RunnerT]):
 
     name: ClassVar[str]
 
-    def __init__(self, config: Any, env: Warehouse, env_params: EnvParams):
+    def __init__(self, config: Any, env: Environment, env_params: Any):
         self.config = config
         self.env = env
         self.env_params = env_params
@@ -56,7 +65,7 @@ class Algorithm(abc.ABC, Generic[RunnerT]):
         """Environment transitions one update collects, for one seed."""
 
     @abc.abstractmethod
-    def init(self, key: jax.Array, hyper: Any | None = None, env_params: EnvParams | None = None) -> RunnerT:
+    def init(self, key: jax.Array, hyper: Any | None = None, env_params: Any | None = None) -> RunnerT:
         """The runner state of one seed before training.
 
         ``hyper`` (the algorithm's traced hyperparameters) and ``env_params``

@@ -54,13 +54,13 @@ from wrl_jax.agents.base import (
     EpisodeStats,
     EpisodeSums,
     Metrics,
+    observation_size,
     sum_episode_sums,
     track_episodes,
 )
 from wrl_jax.agents.networks import MLP, mlp_forward_flops
 from wrl_jax.agents.replay import ReplayBuffer, Transition
-from wrl_jax.env import Warehouse
-from wrl_jax.types import EnvParams, EnvState
+from wrl_jax.core.environment import Environment
 
 LossName = Literal["huber", "mse"]
 
@@ -343,12 +343,12 @@ class DQNRunner:
     target_params: Any
     opt_state: Any
     buffer: ReplayBuffer
-    env_state: EnvState  # batched over num_envs
+    env_state: Any  # the env family's state, batched over num_envs
     obs: jax.Array  # (num_envs, obs_size)
     episode_stats: EpisodeStats
     key: jax.Array
     hyper: DQNHyper
-    env_params: EnvParams
+    env_params: Any
 
 
 # ------------------------------------------------------------------ algorithm
@@ -363,7 +363,7 @@ class DQN(Algorithm[DQNRunner]):
 
     name = "dqn"
 
-    def __init__(self, config: DQNConfig, env: Warehouse, env_params: EnvParams):
+    def __init__(self, config: DQNConfig, env: Environment, env_params: Any):
         if not isinstance(config, DQNConfig):
             raise TypeError(f"DQN needs a DQNConfig, got {type(config).__name__}")
         super().__init__(config, env, env_params)
@@ -395,7 +395,7 @@ class DQN(Algorithm[DQNRunner]):
         than a whole short training run. The parameter tree is the MLP's, so
         ``network.apply`` is unchanged.
         """
-        shapes = jax.eval_shape(self.network.init, key, jnp.zeros((self.env.obs_size,), jnp.float32))["params"]
+        shapes = jax.eval_shape(self.network.init, key, jnp.zeros((observation_size(self.env),), jnp.float32))["params"]
         names = sorted(shapes, key=lambda name: int(name.split("_")[-1]))  # Dense_0, Dense_1, ...
         sizes = [shapes[name][part].size for name in names for part in ("kernel", "bias")]
         # One draw for all parameters: every random call costs compile time.
@@ -415,20 +415,19 @@ class DQN(Algorithm[DQNRunner]):
         """Q-values of every action, ``(..., num_actions)``."""
         return self.network.apply(network_params, obs)
 
-    def init(self, key: jax.Array, hyper: DQNHyper | None = None, env_params: EnvParams | None = None) -> DQNRunner:
+    def init(self, key: jax.Array, hyper: DQNHyper | None = None, env_params: Any | None = None) -> DQNRunner:
         config = self.config
         hyper = DQNHyper.from_config(config) if hyper is None else hyper
         env_params = self.env_params if env_params is None else env_params
         key, net_key, reset_key = jax.random.split(key, 3)
-        items = jax.random.bits(reset_key, (config.num_envs,), jnp.uint32) % env_params.num_items.astype(jnp.uint32)
-        obs, env_state = jax.vmap(self.env.reset_to_item, in_axes=(0, None))(items.astype(jnp.int32), env_params)
+        obs, env_state = self.env.batch_reset(reset_key, config.num_envs, env_params)
         params = self.init_network(net_key)
         return DQNRunner(
             params=params,
             # A copy, not the same buffers: the target must not alias the online net.
             target_params=jax.tree.map(jnp.copy, params),
             opt_state=self.optimizer.init(params),
-            buffer=ReplayBuffer.empty(config.buffer_size, self.env.obs_size),
+            buffer=ReplayBuffer.empty(config.buffer_size, observation_size(self.env)),
             env_state=env_state,
             obs=obs,
             episode_stats=EpisodeStats.zeros(config.num_envs),
@@ -451,14 +450,13 @@ class DQN(Algorithm[DQNRunner]):
         config = self.config
         # All randomness of a vector step comes from one split and one draw:
         # every random call site costs compile time (threefry is a large kernel).
-        key, draw_key = jax.random.split(runner.key)
-        bits = jax.random.bits(draw_key, (3, config.num_envs), jnp.uint32)
+        key, draw_key, env_key = jax.random.split(runner.key, 3)
+        bits = jax.random.bits(draw_key, (2, config.num_envs), jnp.uint32)
         explore = _unit_float(bits[0]) < self.epsilon(runner.hyper, timestep)
         random_action = (bits[1] % self.env.num_actions).astype(jnp.int32)
         action = jnp.where(explore, random_action, self.greedy_action(runner.params, runner.obs))
-        next_item = (bits[2] % runner.env_params.num_items.astype(jnp.uint32)).astype(jnp.int32)
-        obs, env_state, reward, terminated, truncated, info = jax.vmap(self._step_and_reset, in_axes=(0, 0, 0, None))(
-            runner.env_state, action, next_item, runner.env_params
+        obs, env_state, reward, terminated, truncated, info = self._step_envs(
+            env_key, runner.env_state, action, runner.env_params
         )
         buffer = runner.buffer.add(
             Transition(
@@ -470,17 +468,18 @@ class DQN(Algorithm[DQNRunner]):
             )
         )
         stats, sums = track_episodes(runner.episode_stats, reward, terminated, truncated)
-        collisions = info["collision"].sum().astype(jnp.float32)
+        # Shelf collisions, where the family reports them (the warehouse's "collision" flag).
+        collisions = info["collision"].sum().astype(jnp.float32) if "collision" in info else jnp.float32(0.0)
         runner = runner.replace(key=key, buffer=buffer, env_state=env_state, obs=obs, episode_stats=stats)
         return runner, (sums, collisions)
 
-    def _step_and_reset(
-        self, state: EnvState, action: jax.Array, next_item: jax.Array, env_params: EnvParams
-    ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, jax.Array]]:
-        """One environment's transition with automatic reset to ``next_item``
-        (:meth:`Warehouse.step_to_item`: the item comes from the vector step's
-        single random draw; ``info["final_obs"]`` is the observation reached)."""
-        return self.env.step_to_item(state, action, next_item, env_params)
+    def _step_envs(
+        self, key: jax.Array, state: Any, action: jax.Array, env_params: Any
+    ) -> tuple[jax.Array, Any, jax.Array, jax.Array, jax.Array, dict[str, jax.Array]]:
+        """Every environment's transition with automatic reset (the environment's
+        :meth:`~wrl_jax.core.environment.Environment.batch_step`, one key for the
+        batch; ``info["final_obs"]`` is the observation reached)."""
+        return self.env.batch_step(key, state, action, env_params)
 
     def loss_fn(
         self, params: Any, target_params: Any, hyper: DQNHyper, batch: Transition
@@ -580,13 +579,13 @@ class DQN(Algorithm[DQNRunner]):
         [256, 256]) is 52.5 MFLOP of forward+backward plus 17.5 of target
         forward: 70 MFLOP per update.
         """
-        forward = mlp_forward_flops(self.env.obs_size, self.config.hidden_sizes, self.env.num_actions)
+        forward = mlp_forward_flops(observation_size(self.env), self.config.hidden_sizes, self.env.num_actions)
         passes = 5 if self.config.double_dqn else 4
         return passes * forward * self.config.batch_size * self.config.gradient_steps
 
     def flops_per_update(self) -> int:
         """Gradient steps plus the epsilon-greedy forward pass of every collected transition."""
-        forward = mlp_forward_flops(self.env.obs_size, self.config.hidden_sizes, self.env.num_actions)
+        forward = mlp_forward_flops(observation_size(self.env), self.config.hidden_sizes, self.env.num_actions)
         return self.gradient_flops_per_update() + self.config.steps_per_update * forward
 
 
@@ -607,12 +606,12 @@ DEFAULT_ENV = "Warehouse-8x8-v0"
 """The study's DQN environment; what ``train_dqn.py`` trains on by default."""
 
 
-def make_algorithm(config: DQNConfig, env: Warehouse | None = None, env_params: EnvParams | None = None) -> DQN:
+def make_algorithm(config: DQNConfig, env: Environment | None = None, env_params: Any | None = None) -> DQN:
     """The :class:`DQN` of ``config`` on ``env`` (default: :data:`DEFAULT_ENV`)."""
     if env is None:
         if env_params is not None:
             raise ValueError("pass env together with env_params")
-        from wrl_jax.registry import make
+        from wrl_jax.core.registry import make
 
         env, env_params = make(DEFAULT_ENV)
     elif env_params is None:
@@ -621,7 +620,7 @@ def make_algorithm(config: DQNConfig, env: Warehouse | None = None, env_params: 
 
 
 def make_train(
-    config: DQNConfig, env: Warehouse | None = None, env_params: EnvParams | None = None
+    config: DQNConfig, env: Environment | None = None, env_params: Any | None = None
 ) -> Callable[..., tuple[DQNRunner, Metrics]]:
     """``train(key) -> (runner, metrics)``: a whole run of one seed as one jittable function.
 

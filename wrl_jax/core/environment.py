@@ -65,6 +65,10 @@ class Environment(gymnax_environment.Environment, Generic[StateT, ParamsT]):
     :meth:`static_config`, :meth:`reset_env`, :meth:`transition` and the spaces.
     """
 
+    family: str = ""
+    """The family folder under :mod:`wrl_jax.envs` (``"warehouse"``, ``"fleet"``...): which
+    evaluation hook the training driver uses (:mod:`wrl_jax.training.evaluation`)."""
+
     def __init__(self, default_params: ParamsT | None = None):
         self._default_params = default_params
         self._fingerprint = params_fingerprint(default_params)
@@ -144,6 +148,26 @@ class Environment(gymnax_environment.Environment, Generic[StateT, ParamsT]):
 
     def is_terminated(self, state: StateT, params: ParamsT) -> jax.Array:
         return jnp.zeros((), dtype=bool)
+
+    # ------------------------------------------------------------ batches
+    def batch_reset(self, key: jax.Array, num_envs: int, params: ParamsT) -> tuple[Any, StateT]:
+        """``num_envs`` fresh episodes from one key (leaves with a leading axis ``num_envs``).
+
+        Generic: a key per environment and ``vmap(reset_env)``. A family may
+        override it with a cheaper equivalent (one draw for the whole batch).
+        """
+        keys = jax.random.split(key, num_envs)
+        return jax.vmap(self.reset_env, in_axes=(0, None))(keys, params)
+
+    def batch_step(self, key: jax.Array, state: StateT, action: Any, params: ParamsT) -> StepResult:
+        """:meth:`step` for a batch of environments from one key (what learners call).
+
+        Generic: a key per environment and ``vmap(step)``; a family may
+        override it with a cheaper equivalent, as the warehouse does.
+        """
+        num_envs = jax.tree_util.tree_leaves(state)[0].shape[0]
+        keys = jax.random.split(key, num_envs)
+        return jax.vmap(self.step, in_axes=(0, 0, 0, None))(keys, state, action, params)
 
     # ------------------------------------------------------------ family hooks
     def reset_env(self, key: jax.Array, params: ParamsT) -> tuple[Any, StateT]:

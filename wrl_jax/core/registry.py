@@ -77,6 +77,29 @@ def make(name: str, **overrides: Any) -> tuple[Any, Any]:
     return found.load()(**{**dict(found.kwargs), **overrides})
 
 
+_EVALUATIONS: dict[str, str] = {}
+
+
+def register_evaluation(family: str, target: str) -> None:
+    """Register a family's evaluation hook (``"module:attribute"``, a
+    :class:`wrl_jax.training.evaluation.FamilyEvaluation`), loaded on first use."""
+    existing = _EVALUATIONS.get(family)
+    if existing is not None and existing != target:
+        raise ValueError(f"family {family!r} already has the evaluation {existing}")
+    _EVALUATIONS[family] = target
+
+
+def evaluation(family: str) -> Any:
+    """The evaluation hook of an environment family."""
+    if family not in _EVALUATIONS:
+        raise ValueError(
+            f"environment family {family!r} has no evaluation registered (known: {sorted(_EVALUATIONS)}); "
+            f"register one in wrl_jax/envs/__init__.py"
+        )
+    module_name, attribute = _EVALUATIONS[family].split(":")
+    return getattr(importlib.import_module(module_name), attribute)
+
+
 def _register_with_gymnax(name: str) -> None:
     import gymnax
 

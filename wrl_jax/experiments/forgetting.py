@@ -118,7 +118,7 @@ def train(setting: Setting, seeds: list[int], quick: bool, variants=VARIANTS) ->
 
 
 def training_init(algo, seeds: list[int], params: EnvParams):
-    from wrl_jax import training
+    from wrl_jax.training import driver as training
 
     return training.Trainer(algo, seeds=seeds, loop=training.LoopConfig(progress=False)).init(
         env_params=common.stack_trees([params] * len(seeds)))

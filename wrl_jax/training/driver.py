@@ -17,10 +17,12 @@ Two shapes of the same loop:
 
 Periodic greedy evaluation runs *inside* the compiled chunk, every
 ``eval_every`` updates and after the last one (a ``lax.cond`` on the update
-index, so it costs nothing on the other updates): the policy of every seed on
-every item index (:mod:`wrl_jax.evaluation`). Its per-seed results become
-``eval_*`` metrics, and the first update at which a seed delivers every item at
-the BFS optimum gives that seed's *convergence step*.
+index, so it costs nothing on the other updates): the greedy policy of every
+seed, evaluated by the environment family's hook
+(:mod:`wrl_jax.training.evaluation`; for the warehouse, every item index). Its
+per-seed results become ``eval_*`` metrics, and the first update at which a seed
+*solves* the task (the hook's ``solved_key``: for the warehouse, every item
+delivered at the BFS optimum) gives that seed's *convergence step*.
 
 Metric aggregation over a log group of ``log_every`` updates: episode sums
 (``episodes``, ``delivered``, ``return_sum``, ``length_sum`` and any key ending in
@@ -45,7 +47,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from wrl_jax import checkpoint, evaluation, metrics_io
+from wrl_jax.training import checkpoint, metrics_io
+from wrl_jax.training import evaluation as family_evaluation
 from wrl_jax.agents.base import Algorithm, EpisodeSums
 
 SUM_METRICS = frozenset(f.name for f in dataclasses.fields(EpisodeSums))
@@ -143,7 +146,7 @@ class LatestEval:
     """The most recent in-training evaluation: after ``update`` updates (0: none yet)."""
 
     update: jax.Array
-    episodes: evaluation.EpisodeEval
+    episodes: Any  # the family's evaluation result, leaves (seeds, ...)
 
 
 class Trainer:
@@ -169,6 +172,7 @@ class Trainer:
         self._chunk_jit = jax.jit(self._chunk)
         self._compiled = None
         self._compiled_signature = None
+        self.evaluation = family_evaluation.for_env(algo.env)
         self._eval_jit = jax.jit(self._evaluate)
 
     # ---------------------------------------------------------------- init
@@ -187,9 +191,9 @@ class Trainer:
         return jax.eval_shape(self.init, hyper, env_params)
 
     # --------------------------------------------------------- compiled chunk
-    def _evaluate(self, runners: Any) -> evaluation.EpisodeEval:
+    def _evaluate(self, runners: Any) -> Any:
         network_params = jax.vmap(self.algo.network_params)(runners)
-        return evaluation.evaluate_seeds(
+        return self.evaluation.evaluate_seeds(
             self.algo.greedy_action, network_params, self.algo.env, runners.env_params, params_batched=True
         )
 
@@ -207,7 +211,7 @@ class Trainer:
 
         def evaluate(runners, index, latest):
             episodes = self._evaluate(runners)
-            return jax.vmap(evaluation.seed_summary)(episodes), LatestEval(update=index + 1, episodes=episodes)
+            return jax.vmap(self.evaluation.seed_summary)(episodes), LatestEval(update=index + 1, episodes=episodes)
 
         def active(carry, index):
             runners, latest = carry
@@ -277,8 +281,8 @@ class Trainer:
         return runners
 
     # ------------------------------------------------------------- evaluation
-    def evaluate(self, runners: Any) -> evaluation.EpisodeEval:
-        """Greedy episodes of every seed on every item (leaves ``(seeds, K_max)``), compiled separately."""
+    def evaluate(self, runners: Any) -> Any:
+        """The family's greedy evaluation of every seed (leaves ``(seeds, ...)``), compiled separately."""
         return self._eval_jit(runners)
 
     # --------------------------------------------------------------- metrics
@@ -319,18 +323,21 @@ def _aggregate(key: str, values: np.ndarray) -> float:
 # ------------------------------------------------------------- convergence
 @dataclasses.dataclass
 class Convergence:
-    """Per-seed history of the periodic evaluations' "every item at the optimum" flag.
+    """Per-seed history of the periodic evaluations' "solved" flag (the family's ``solved_key``).
 
     Attributes:
         updates: the update counts (1-based) at which an evaluation ran.
-        all_optimal: per evaluation, one flag per seed.
+        all_optimal: per evaluation, one flag per seed (the name of the
+            warehouse's flag, kept so checkpoints written before stay readable).
+        solved_key: the metric holding the flag.
     """
 
     updates: list[int] = dataclasses.field(default_factory=list)
     all_optimal: list[list[bool]] = dataclasses.field(default_factory=list)
+    solved_key: str = "eval_all_optimal"
 
     def record(self, metrics: dict[str, np.ndarray], start: int) -> None:
-        flags = metrics.get("eval_all_optimal")
+        flags = metrics.get(self.solved_key)
         if flags is None:
             return
         for offset, row in enumerate(flags):
@@ -361,8 +368,8 @@ class Convergence:
         return {"updates": self.updates, "all_optimal": self.all_optimal}
 
     @classmethod
-    def from_json(cls, data: dict[str, Any]) -> "Convergence":
-        return cls(list(data.get("updates", [])), [list(x) for x in data.get("all_optimal", [])])
+    def from_json(cls, data: dict[str, Any], solved_key: str = "eval_all_optimal") -> "Convergence":
+        return cls(list(data.get("updates", [])), [list(x) for x in data.get("all_optimal", [])], solved_key)
 
 
 # ------------------------------------------------------------------ the run
@@ -430,7 +437,7 @@ def run(
         "eval_every": loop.eval_every,
     }
     out = Path(out_dir) if out_dir is not None else None
-    start, train_seconds, convergence = 0, 0.0, Convergence()
+    start, train_seconds, convergence = 0, 0.0, Convergence(solved_key=trainer.evaluation.solved_key)
     if runners is None:
         runners = trainer.init()
     if resume:
@@ -439,7 +446,7 @@ def run(
         runners, saved = checkpoint.load(out, jax.eval_shape(lambda: runners), expected=run_meta)
         start = int(saved["updates_done"])
         train_seconds = float(saved.get("train_seconds", 0.0))
-        convergence = Convergence.from_json(saved.get("convergence", {}))
+        convergence = Convergence.from_json(saved.get("convergence", {}), solved_key=trainer.evaluation.solved_key)
     writer = metrics_io.MetricsWriter(out, resume_after=start if resume else None) if out is not None else None
 
     latest = trainer.empty_eval(runners)
@@ -501,7 +508,7 @@ def run(
             if bar is not None:
                 bar.update(ran * trainer.steps_per_update)
                 steps_per_second = ran * trainer.steps_per_update * len(trainer.seeds) / max(elapsed, 1e-9)
-                postfix = describe(rows) if describe is not None else _describe(rows)
+                postfix = describe(rows) if describe is not None else _describe(rows, trainer.evaluation.progress_metric)
                 bar.set_postfix_str(f"{steps_per_second / 1e3:,.0f}k steps/s (all seeds) | {postfix}", refresh=True)
     except KeyboardInterrupt:
         # ``runners`` and ``updates_done`` still describe the last completed chunk.
@@ -511,6 +518,8 @@ def run(
     finally:
         if bar is not None:
             bar.close()
+        if writer is not None:
+            writer.close()
     return RunResult(
         runners=runners,
         updates_done=updates_done,
@@ -524,8 +533,8 @@ def run(
     )
 
 
-def final_evaluation(trainer: Trainer, result: RunResult) -> evaluation.EpisodeEval:
-    """Every seed on every item after training: the in-loop evaluation of the last update when
+def final_evaluation(trainer: Trainer, result: RunResult) -> Any:
+    """Every seed's evaluation after training: the in-loop evaluation of the last update when
     there is one (no extra compile), otherwise a separately compiled evaluation."""
     latest = result.latest_eval
     if latest is not None and int(latest.update) == result.updates_done and result.updates_done > 0:
@@ -533,17 +542,20 @@ def final_evaluation(trainer: Trainer, result: RunResult) -> evaluation.EpisodeE
     return trainer.evaluate(result.runners)
 
 
-def _describe(rows: list[dict[str, Any]]) -> str:
-    """Progress postfix: return and delivery rate of the chunk's training episodes, last eval."""
+def _describe(rows: list[dict[str, Any]], progress_metric: tuple[str, str]) -> str:
+    """Progress postfix: return (and deliveries) of the chunk's training episodes, the family's eval metric."""
     episodes = sum(row.get("episodes", 0.0) for row in rows)
     text = "no episode ended"
     if episodes:
         ret = sum(row.get("return_sum", 0.0) for row in rows) / episodes
-        delivered = sum(row.get("delivered", 0.0) for row in rows) / episodes
-        text = f"return {ret:+.1f} | delivered {100 * delivered:.0f}%"
-    evals = [row["eval_optimal_rate"] for row in rows if not math.isnan(row.get("eval_optimal_rate", math.nan))]
+        text = f"return {ret:+.1f}"
+        if any("delivered" in row for row in rows):
+            delivered = sum(row.get("delivered", 0.0) for row in rows) / episodes
+            text += f" | delivered {100 * delivered:.0f}%"
+    key, label = progress_metric
+    evals = [row[key] for row in rows if not math.isnan(row.get(key, math.nan))]
     if evals:
-        text += f" | eval optimal {100 * float(np.mean(evals[-len(set(r['seed'] for r in rows)):])):.0f}%"
+        text += f" | {label} {100 * float(np.mean(evals[-len(set(r['seed'] for r in rows)):])):.0f}%"
     return text
 
 

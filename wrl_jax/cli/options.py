@@ -1,0 +1,227 @@
+"""Training-command options: flags from dataclasses, presets, resume defaults, validation, config (de)serialization.
+
+A training command's flags come from three dataclasses, flattened by tyro into
+one namespace: :class:`EnvOptions` (``--env`` and the environment's overrides),
+:class:`RunOptions` (seeds, output, cadence, devices) and the algorithm's
+config dataclass (every hyperparameter; ``--preset NAME`` picks the defaults
+the other flags override). Everything is validated before anything compiles:
+a bad value raises ``ValueError`` naming it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+import sys
+import typing
+from pathlib import Path
+from typing import Any
+
+from wrl_jax.agents import get_spec
+from wrl_jax.agents.base import AlgoSpec
+from wrl_jax.cli.machine import DEFAULT_XLA_OPT_LEVEL
+
+@dataclasses.dataclass
+class EnvOptions:
+    """The environment and its overrides (``None`` keeps the registered value)."""
+
+    env: str = "Warehouse-12x12-v0"
+    """registered environment name"""
+    max_steps: int | None = None
+    """episode length before truncation"""
+    step_penalty: float | None = None
+    obstacle_penalty: float | None = None
+    wall_penalty: float | None = None
+    shaping_coef: float | None = None
+    pickup_reward: float | None = None
+    delivery_reward: float | None = None
+    observe_carrying: bool = True
+    """include the carrying flag in the observation (False: the study's failure mode)"""
+    collision_bug: bool = False
+    """reproduce the study's collision bug"""
+
+    def overrides(self) -> dict[str, Any]:
+        """Keyword overrides for ``wrl_jax.make``: only what differs from the registered environment."""
+        out = {
+            f.name: getattr(self, f.name)
+            for f in dataclasses.fields(self)
+            if f.name not in ("env", "observe_carrying", "collision_bug") and getattr(self, f.name) is not None
+        }
+        if not self.observe_carrying:
+            out["observe_carrying"] = False
+        if self.collision_bug:
+            out["collision_bug"] = True
+        return out
+
+
+@dataclasses.dataclass
+class RunOptions:
+    """Seeds, output and how the host drives training."""
+
+    preset: str = "default"
+    """hyperparameter preset the other flags override (e.g. default, paper)"""
+    num_seeds: int = 4
+    """independent seeds trained at once (vmapped)"""
+    seed: int = 0
+    """first seed; the run trains seeds seed .. seed + num_seeds - 1"""
+    out: Path | None = None
+    """output directory (default runs/<algo>-<env>-<time>)"""
+    resume: bool = False
+    """continue the checkpoint in --out (its settings are reused)"""
+    overwrite: bool = False
+    """start over in an --out that already holds a checkpoint"""
+    stop_after: int | None = None
+    """stop (with a checkpoint) after this many updates; --resume continues"""
+    chunk_updates: int | None = None
+    """updates per compiled call (progress/checkpoint granularity; results do not depend on it)"""
+    eval_every: int | None = None
+    """greedy evaluation on every item every this many updates and after the last (0: only the final one)"""
+    log_every: int | None = None
+    """updates aggregated per metrics row"""
+    checkpoint_every: int = 1
+    """chunks between checkpoints"""
+    progress: bool = True
+    """show a progress bar"""
+    plot: bool = True
+    """write learning_curve.png"""
+    xla_opt_level: int = DEFAULT_XLA_OPT_LEVEL
+    """XLA CPU backend optimization level (-1: XLA's default)"""
+    devices: int = 1
+    """shard the seeds over this many devices (0: all, every host's; 1: no sharding); docs/scale.md"""
+    env_shards: int = 1
+    """of those devices, how many split each seed's environments"""
+    distributed: bool = False
+    """multi-host: call jax.distributed.initialize first (WRL_COORDINATOR, WRL_NUM_PROCESSES, WRL_PROCESS_ID)"""
+
+    def seeds(self) -> list[int]:
+        return list(range(self.seed, self.seed + self.num_seeds))
+
+
+def config_to_dict(config: Any) -> dict[str, Any]:
+    """A config dataclass as JSON-able data (tuples become lists)."""
+    return json.loads(json.dumps(dataclasses.asdict(config)))
+
+
+def config_from_dict(cls: type, data: dict[str, Any]) -> Any:
+    """Rebuild a config dataclass from :func:`config_to_dict`'s output (lists back to tuples)."""
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ValueError(f"{cls.__name__} has no field(s) {unknown}")
+    values = {}
+    for name, value in data.items():
+        if isinstance(value, list) and typing.get_origin(hints[name]) is tuple:
+            value = tuple(value)
+        values[name] = value
+    return cls(**values)
+
+
+# --------------------------------------------------------------------- parse
+@dataclasses.dataclass
+class Command:
+    """A parsed and validated training command."""
+
+    spec: AlgoSpec
+    env: EnvOptions
+    run: RunOptions
+    config: Any
+
+    @property
+    def out_dir(self) -> Path:
+        assert self.run.out is not None
+        return self.run.out
+
+
+def parse(algo: str, argv: list[str] | None = None) -> Command:
+    """Parse and validate a training command line (raises ``ValueError``; ``--help`` exits)."""
+    import tyro
+
+    from wrl_jax.training import checkpoint
+
+    spec = get_spec(algo)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--preset", default=spec.default_preset)
+    pre.add_argument("--out", default=None)
+    pre.add_argument("--resume", action="store_true")
+    known, _ = pre.parse_known_args(argv)
+
+    env_defaults = EnvOptions(env=spec.default_env)
+    run_defaults = RunOptions(preset=spec.default_preset, num_seeds=spec.default_num_seeds)
+    if known.resume:
+        if known.out is None:
+            raise ValueError("--resume needs --out DIR, the directory of the run to continue")
+        saved = checkpoint.read_metadata(known.out)
+        if saved.get("algo") != spec.name:
+            raise ValueError(f"{known.out} holds a {saved.get('algo')!r} run, not {spec.name!r}")
+        config_defaults = config_from_dict(spec.config_cls, saved["config"])
+        env_defaults = EnvOptions(env=saved["env"], **saved.get("env_overrides", {}))
+        seeds = saved["seeds"]
+        run_defaults = dataclasses.replace(
+            run_defaults, preset=saved.get("preset", spec.default_preset), num_seeds=len(seeds), seed=seeds[0]
+        )
+        if "log_every" in saved:
+            run_defaults = dataclasses.replace(
+                run_defaults, log_every=saved["log_every"], eval_every=saved["eval_every"]
+            )
+    else:
+        if known.preset not in spec.presets:
+            raise ValueError(f"unknown {spec.name} preset {known.preset!r}; choose from {sorted(spec.presets)}")
+        config_defaults = spec.presets[known.preset]
+        run_defaults = dataclasses.replace(run_defaults, preset=known.preset)
+
+    args_cls = dataclasses.make_dataclass(
+        f"{spec.name.upper()}Args",
+        [("env", EnvOptions), ("run", RunOptions), ("algo", spec.config_cls)],
+    )
+    defaults = args_cls(env=env_defaults, run=run_defaults, algo=config_defaults)
+    parsed = tyro.cli(
+        args_cls,
+        default=defaults,
+        args=argv,
+        prog=f"train_{spec.name}.py",
+        description=f"Train {spec.name.upper()} on a warehouse environment (wrl_jax). "
+        f"Presets: {', '.join(sorted(spec.presets))}.",
+        config=(tyro.conf.OmitArgPrefixes,),
+    )
+    command = Command(spec=spec, env=parsed.env, run=parsed.run, config=parsed.algo)
+    validate(command)
+    return command
+
+
+def validate(command: Command) -> None:
+    """Raise ``ValueError`` for anything wrong with a command, before anything is compiled."""
+    from wrl_jax.core import registry
+
+    run, spec = command.run, command.spec
+    if run.preset not in spec.presets:
+        raise ValueError(f"unknown {spec.name} preset {run.preset!r}; choose from {sorted(spec.presets)}")
+    registry.entry(command.env.env)  # unknown environment -> ValueError
+    if run.num_seeds < 1:
+        raise ValueError(f"--num-seeds must be at least 1, got {run.num_seeds}")
+    if run.seed < 0:
+        raise ValueError(f"--seed must be >= 0, got {run.seed}")
+    if run.stop_after is not None and run.stop_after < 1:
+        raise ValueError(f"--stop-after must be a positive number of updates, got {run.stop_after}")
+    if run.resume and run.overwrite:
+        raise ValueError("--resume and --overwrite contradict each other")
+    if run.devices < 0 or run.env_shards < 1:
+        raise ValueError(f"--devices must be >= 0 (0: all) and --env-shards >= 1, got {run.devices}, {run.env_shards}")
+    command.config.validate()
+    if run.out is None:
+        stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+        run.out = Path("runs") / f"{spec.name}-{command.env.env}-{stamp}"
+    run.out = Path(run.out)
+
+
+def build(spec: AlgoSpec, config: Any, env_options: EnvOptions):
+    """The algorithm object for a config and environment options."""
+    import wrl_jax
+
+    env, env_params = wrl_jax.make(env_options.env, **env_options.overrides())
+    return spec.algorithm_cls(config, env, env_params)
+
+

@@ -1,0 +1,41 @@
+"""Training infrastructure every algorithm and environment family shares.
+
+- :mod:`~wrl_jax.training.driver`: ``make_train`` (one program), the chunked
+  :class:`Trainer` and :func:`run` (progress, metrics, checkpoints, exact resume);
+- :mod:`~wrl_jax.training.evaluation`: the family evaluation hook the driver calls;
+- :mod:`~wrl_jax.training.metrics_io`: JSONL/CSV/TensorBoard metrics and plots;
+- :mod:`~wrl_jax.training.checkpoint`: atomic checkpoints;
+- :mod:`~wrl_jax.training.sharding`, :mod:`~wrl_jax.training.sweep`: devices and sweeps.
+
+The driver's public names are re-exported here (``wrl_jax.training.Trainer``...).
+"""
+
+from wrl_jax.training.driver import (
+    SUM_METRICS,
+    Convergence,
+    LatestEval,
+    LoopConfig,
+    RunResult,
+    Trainer,
+    final_evaluation,
+    install_sigterm_handler,
+    make_train,
+    make_train_seeds,
+    run,
+    seed_keys,
+)
+
+__all__ = [
+    "SUM_METRICS",
+    "Convergence",
+    "LatestEval",
+    "LoopConfig",
+    "RunResult",
+    "Trainer",
+    "final_evaluation",
+    "install_sigterm_handler",
+    "make_train",
+    "make_train_seeds",
+    "run",
+    "seed_keys",
+]
