@@ -17,7 +17,8 @@ def small():
 
 
 def test_registered_names_and_unknown_name():
-    assert wrl_jax.registered_names() == ["Warehouse-12x12-v0", "Warehouse-8x8-v0"]
+    assert wrl_jax.registered_names(family="warehouse") == ["Warehouse-12x12-v0", "Warehouse-8x8-v0"]
+    assert set(wrl_jax.registered_names()) >= {"Warehouse-12x12-v0", "Warehouse-8x8-v0", "Fleet-12x12-v0"}
     with pytest.raises(ValueError, match="unknown environment 'Warehouse-9x9-v0'"):
         wrl_jax.make("Warehouse-9x9-v0")
 

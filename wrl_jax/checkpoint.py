@@ -1,4 +1,5 @@
-"""Moved to :mod:`wrl_jax.training.checkpoint`; this alias keeps ``import wrl_jax.checkpoint`` working (the same module object)."""
+"""Moved to :mod:`wrl_jax.training.checkpoint`;
+this alias keeps ``import wrl_jax.checkpoint`` working (the same module object)."""
 
 import sys
 

@@ -1,4 +1,5 @@
-"""Moved to :mod:`wrl_jax.envs.warehouse.evaluation`; this alias keeps ``import wrl_jax.evaluation`` working (the same module object)."""
+"""Moved to :mod:`wrl_jax.envs.warehouse.evaluation`;
+this alias keeps ``import wrl_jax.evaluation`` working (the same module object)."""
 
 import sys
 

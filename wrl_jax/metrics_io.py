@@ -1,4 +1,5 @@
-"""Moved to :mod:`wrl_jax.training.metrics_io`; this alias keeps ``import wrl_jax.metrics_io`` working (the same module object)."""
+"""Moved to :mod:`wrl_jax.training.metrics_io`;
+this alias keeps ``import wrl_jax.metrics_io`` working (the same module object)."""
 
 import sys
 

@@ -1,4 +1,5 @@
-"""Moved to :mod:`wrl_jax.training.sharding`; this alias keeps ``import wrl_jax.sharding`` working (the same module object)."""
+"""Moved to :mod:`wrl_jax.training.sharding`;
+this alias keeps ``import wrl_jax.sharding`` working (the same module object)."""
 
 import sys
 

@@ -33,6 +33,11 @@ Compile time is part of every short run's wall time, so the update draws all
 randomness of a vector step in one call (each ``jax.random`` call site
 compiles a threefry kernel: tenths of a second each on this CPU) and the
 Q-network is initialized without QR decompositions (see :meth:`DQN.init_network`).
+
+Why one module of this length: config, presets (the study's Table 2 and our
+measured defaults), runner state, acting, learning and the FLOP count are one
+algorithm, readable top to bottom; what DQN shares with PPO lives in
+:mod:`wrl_jax.agents.common`, the replay buffer in :mod:`wrl_jax.agents.replay`.
 """
 
 from __future__ import annotations
@@ -40,11 +45,10 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from typing import Any, ClassVar, Literal
+from typing import Any, Literal
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optax
 from flax import struct
 
@@ -58,11 +62,44 @@ from wrl_jax.agents.base import (
     sum_episode_sums,
     track_episodes,
 )
+from wrl_jax.agents.common import (
+    check_hidden_sizes,
+    check_hyper,
+    check_positive_ints,
+    clip_by_global_norm,
+    hyper_from_config,
+    linear_decay,
+    traced_fields,
+)
 from wrl_jax.agents.networks import MLP, mlp_forward_flops
 from wrl_jax.agents.replay import ReplayBuffer, Transition
 from wrl_jax.core.environment import Environment
 
 LossName = Literal["huber", "mse"]
+
+
+@struct.dataclass
+class DQNHyper:
+    """The traced hyperparameters of one run (float32 scalars, or batched for a sweep).
+
+    These fields are the one declaration of what is traced; every other
+    :class:`DQNConfig` field is static.
+    """
+
+    learning_rate: jax.Array
+    gamma: jax.Array
+    tau: jax.Array
+    exploration_initial_eps: jax.Array
+    exploration_final_eps: jax.Array
+    exploration_fraction: jax.Array
+    max_grad_norm: jax.Array
+    huber_delta: jax.Array
+    reward_scale: jax.Array
+
+    @classmethod
+    def from_config(cls, config: DQNConfig, **overrides: Any) -> "DQNHyper":
+        """The config's values, any of them overridden (scalars or arrays of sweep points)."""
+        return hyper_from_config(cls, config, "DQN", **overrides)
 
 
 # ---------------------------------------------------------------------- config
@@ -129,17 +166,6 @@ class DQNConfig:
     huber_delta: float = 1.0
     reward_scale: float = 1.0
 
-    TRACED_FIELDS: ClassVar[tuple[str, ...]] = (
-        "learning_rate",
-        "gamma",
-        "tau",
-        "exploration_initial_eps",
-        "exploration_final_eps",
-        "exploration_fraction",
-        "max_grad_norm",
-        "huber_delta",
-        "reward_scale",
-    )
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden_sizes", tuple(int(w) for w in self.hidden_sizes))
@@ -170,15 +196,11 @@ class DQNConfig:
             "gradient_steps",
             "target_update_interval",
         )
-        for name in positive_ints:
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"DQNConfig.{name} must be a positive integer, got {value!r}")
+        check_positive_ints("DQNConfig", self, positive_ints)
         starts = self.learning_starts
         if isinstance(starts, bool) or not isinstance(starts, int) or starts < 0:
             raise ValueError(f"DQNConfig.learning_starts must be a non-negative integer, got {self.learning_starts!r}")
-        if not self.hidden_sizes or any(w < 1 for w in self.hidden_sizes):
-            raise ValueError(f"DQNConfig.hidden_sizes must be positive widths, got {self.hidden_sizes!r}")
+        check_hidden_sizes("DQNConfig", self.hidden_sizes)
         if self.activation not in ("relu", "tanh"):
             raise ValueError(f"DQNConfig.activation must be 'relu' or 'tanh', got {self.activation!r}")
         if self.loss not in ("huber", "mse"):
@@ -193,55 +215,13 @@ class DQNConfig:
                 f"DQNConfig.total_timesteps ({self.total_timesteps}) is less than one update "
                 f"(num_envs * train_freq = {self.steps_per_update} transitions)"
             )
-        for name in self.TRACED_FIELDS + ("adam_eps",):
+        for name in traced_fields(DQNHyper) + ("adam_eps",):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise ValueError(f"DQNConfig.{name} must be a finite number, got {value!r}")
-        check_hyper_values(
-            learning_rate=self.learning_rate,
-            gamma=self.gamma,
-            tau=self.tau,
-            exploration_initial_eps=self.exploration_initial_eps,
-            exploration_final_eps=self.exploration_final_eps,
-            exploration_fraction=self.exploration_fraction,
-            max_grad_norm=self.max_grad_norm,
-            huber_delta=self.huber_delta,
-            reward_scale=self.reward_scale,
-        )
+        check_hyper("DQN hyperparameter", **{name: getattr(self, name) for name in traced_fields(DQNHyper)})
         if self.adam_eps <= 0:
             raise ValueError(f"DQNConfig.adam_eps must be positive, got {self.adam_eps}")
-
-
-def check_hyper_values(**values: Any) -> None:
-    """Range checks of the traced hyperparameters (scalars or arrays of sweep points)."""
-    def arr(name):
-        return np.asarray(values[name], dtype=np.float64)
-
-    def fail(name, rule):
-        raise ValueError(f"DQN hyperparameter {name} must be {rule}, got {values[name]!r}")
-
-    for name in values:
-        if not np.all(np.isfinite(arr(name))):
-            fail(name, "finite")
-    if "learning_rate" in values and np.any(arr("learning_rate") <= 0):
-        fail("learning_rate", "positive")
-    if "gamma" in values and np.any((arr("gamma") < 0) | (arr("gamma") > 1)):
-        fail("gamma", "in [0, 1]")
-    if "tau" in values and np.any((arr("tau") <= 0) | (arr("tau") > 1)):
-        fail("tau", "in (0, 1]")
-    for name in ("exploration_initial_eps", "exploration_final_eps"):
-        if name in values and np.any((arr(name) < 0) | (arr(name) > 1)):
-            fail(name, "in [0, 1]")
-    if "exploration_fraction" in values and np.any(
-        (arr("exploration_fraction") <= 0) | (arr("exploration_fraction") > 1)
-    ):
-        fail("exploration_fraction", "in (0, 1]")
-    if "max_grad_norm" in values and np.any(arr("max_grad_norm") <= 0):
-        fail("max_grad_norm", "positive")
-    if "huber_delta" in values and np.any(arr("huber_delta") <= 0):
-        fail("huber_delta", "positive")
-    if "reward_scale" in values and np.any(arr("reward_scale") <= 0):
-        fail("reward_scale", "positive")
 
 
 PAPER = DQNConfig(
@@ -310,31 +290,6 @@ STUDY_TABLE3 = {
 
 
 # ---------------------------------------------------------------------- state
-@struct.dataclass
-class DQNHyper:
-    """The traced hyperparameters of one run (float32 scalars, or batched for a sweep)."""
-
-    learning_rate: jax.Array
-    gamma: jax.Array
-    tau: jax.Array
-    exploration_initial_eps: jax.Array
-    exploration_final_eps: jax.Array
-    exploration_fraction: jax.Array
-    max_grad_norm: jax.Array
-    huber_delta: jax.Array
-    reward_scale: jax.Array
-
-    @classmethod
-    def from_config(cls, config: DQNConfig, **overrides: Any) -> "DQNHyper":
-        """The config's values, any of them overridden (scalars or arrays of sweep points)."""
-        unknown = sorted(set(overrides) - set(DQNConfig.TRACED_FIELDS))
-        if unknown:
-            raise ValueError(f"unknown DQN hyperparameter(s) {unknown}; traced ones: {list(DQNConfig.TRACED_FIELDS)}")
-        values = {name: overrides.get(name, getattr(config, name)) for name in DQNConfig.TRACED_FIELDS}
-        check_hyper_values(**values)
-        return cls(**{name: jnp.asarray(value, jnp.float32) for name, value in values.items()})
-
-
 @struct.dataclass
 class DQNRunner:
     """All mutable state of one seed: a checkpoint of it resumes training exactly."""
@@ -509,9 +464,7 @@ class DQN(Algorithm[DQNRunner]):
         (loss, q_mean), grads = jax.value_and_grad(self.loss_fn, has_aux=True)(
             runner.params, runner.target_params, hyper, batch
         )
-        grad_norm = optax.tree.norm(grads)
-        scale = jnp.minimum(1.0, hyper.max_grad_norm / jnp.maximum(grad_norm, 1e-12))
-        grads = jax.tree.map(lambda g: g * scale, grads)
+        grads, _ = clip_by_global_norm(grads, hyper.max_grad_norm)
         updates, opt_state = self.optimizer.update(grads, runner.opt_state, runner.params)
         params = jax.tree.map(lambda p, u: p - learning_rate * u, runner.params, updates)
         return runner.replace(params=params, opt_state=opt_state), (loss, q_mean)
@@ -520,8 +473,7 @@ class DQN(Algorithm[DQNRunner]):
         """Step size after ``timestep`` transitions (constant, or linearly annealed to 0)."""
         if not self.config.anneal_lr:
             return hyper.learning_rate
-        remaining = 1.0 - timestep.astype(jnp.float32) / self.config.total_timesteps
-        return hyper.learning_rate * jnp.maximum(remaining, 0.0)
+        return linear_decay(hyper.learning_rate, timestep.astype(jnp.float32) / self.config.total_timesteps)
 
     def _train(self, runner: DQNRunner, timestep: jax.Array) -> tuple[DQNRunner, tuple[jax.Array, jax.Array]]:
         """``gradient_steps`` gradient steps; mean loss and mean Q over them."""

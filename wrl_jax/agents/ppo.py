@@ -25,6 +25,11 @@ Stable-Baselines3 with default settings (no ``VecNormalize``) does not scale.
 
 Static fields of :class:`PPOConfig` fix shapes or program structure; the traced
 ones (:class:`PPOHyper`) live in the runner state, so a sweep can ``vmap`` them.
+
+Why one module of this length: config, presets (the study's Table 2 and our
+measured defaults), runner state, the update, the network parameterization
+and the FLOP count are one algorithm, readable top to bottom as PureJaxRL's is;
+what PPO shares with DQN lives in :mod:`wrl_jax.agents.common`.
 """
 
 from __future__ import annotations
@@ -45,6 +50,15 @@ from wrl_jax.agents.base import (
     observation_size,
     sum_episode_sums,
     track_episodes,
+)
+from wrl_jax.agents.common import (
+    check_hidden_sizes,
+    check_hyper,
+    check_positive_ints,
+    clip_by_global_norm,
+    hyper_from_config,
+    linear_decay,
+    traced_fields,
 )
 from wrl_jax.agents.networks import ACTIVATIONS, mlp_forward_flops
 from wrl_jax.core.environment import Environment
@@ -112,17 +126,15 @@ class PPOConfig:
     def minibatch_size(self) -> int:
         return self.steps_per_update // self.num_minibatches
 
-    def hyper(self) -> "PPOHyper":
-        return PPOHyper(**{f.name: jnp.asarray(getattr(self, f.name), jnp.float32) for f in dataclasses.fields(PPOHyper)})
+    def hyper(self, **overrides: Any) -> "PPOHyper":
+        """The traced hyperparameters (:class:`PPOHyper`), any of them overridden (a sweep's arrays)."""
+        return hyper_from_config(PPOHyper, self, "PPO", **overrides)
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first problem; called before anything is compiled."""
-        for name in ("num_envs", "num_steps", "num_minibatches", "update_epochs", "total_timesteps"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"PPO {name} must be a positive integer, got {value!r}")
-        if not self.hidden_sizes or any(int(w) < 1 for w in self.hidden_sizes):
-            raise ValueError(f"PPO hidden_sizes must be positive widths, e.g. (64, 64), got {self.hidden_sizes!r}")
+        positive = ("num_envs", "num_steps", "num_minibatches", "update_epochs", "total_timesteps")
+        check_positive_ints("PPO", self, positive)
+        check_hidden_sizes("PPO", self.hidden_sizes)
         if self.obs_encoding not in OBS_ENCODINGS:
             raise ValueError(f"PPO obs_encoding must be one of {OBS_ENCODINGS}, got {self.obs_encoding!r}")
         if self.activation not in ACTIVATIONS:
@@ -137,34 +149,16 @@ class PPOConfig:
                 f"PPO total_timesteps={self.total_timesteps} is less than one update "
                 f"(num_envs * num_steps = {self.steps_per_update})"
             )
-        checks = {
-            "learning_rate": self.learning_rate > 0,
-            "gamma": 0 < self.gamma <= 1,
-            "gae_lambda": 0 <= self.gae_lambda <= 1,
-            "clip_eps": self.clip_eps > 0,
-            "ent_coef": self.ent_coef >= 0,
-            "vf_coef": self.vf_coef >= 0,
-            "max_grad_norm": self.max_grad_norm > 0,
-            "reward_scale": self.reward_scale > 0,
-        }
-        ranges = {
-            "learning_rate": "> 0",
-            "gamma": "in (0, 1]",
-            "gae_lambda": "in [0, 1]",
-            "clip_eps": "> 0",
-            "ent_coef": ">= 0",
-            "vf_coef": ">= 0",
-            "max_grad_norm": "> 0",
-            "reward_scale": "> 0",
-        }
-        for name, ok in checks.items():
-            if not ok:
-                raise ValueError(f"PPO {name} must be {ranges[name]}, got {getattr(self, name)!r}")
+        check_hyper("PPO", **{name: getattr(self, name) for name in traced_fields(PPOHyper)})
 
 
 @struct.dataclass
 class PPOHyper:
-    """The traced hyperparameters (float32 scalars, or batched along a sweep axis)."""
+    """The traced hyperparameters (float32 scalars, or batched along a sweep axis).
+
+    These fields are the one declaration of what is traced; every other
+    :class:`PPOConfig` field is static.
+    """
 
     learning_rate: jax.Array
     gamma: jax.Array
@@ -346,9 +340,9 @@ class PPO(Algorithm[PPORunner]):
             "return": returns,
         }
         batch = jax.tree.map(lambda x: x.reshape((cfg.steps_per_update,) + x.shape[2:]), batch)
-        remaining = 1.0 - update_index.astype(jnp.float32) / cfg.num_updates  # 1 at the first update
-        learning_rate = hyper.learning_rate * remaining if cfg.anneal_lr else hyper.learning_rate
-        ent_coef = hyper.ent_coef * remaining if cfg.anneal_ent else hyper.ent_coef
+        progress = update_index.astype(jnp.float32) / cfg.num_updates  # 0 at the first update
+        learning_rate = linear_decay(hyper.learning_rate, progress) if cfg.anneal_lr else hyper.learning_rate
+        ent_coef = linear_decay(hyper.ent_coef, progress) if cfg.anneal_ent else hyper.ent_coef
         hyper = hyper.replace(ent_coef=ent_coef)
 
         # A random permutation of the batch per epoch: argsort of random bits.
@@ -363,7 +357,7 @@ class PPO(Algorithm[PPORunner]):
             def minibatch_step(carry, mb):
                 params, opt_state = carry
                 grads, stats = jax.grad(self._loss, has_aux=True)(params, mb, hyper)
-                grads, grad_norm = _clip_by_global_norm(grads, hyper.max_grad_norm)
+                grads, grad_norm = clip_by_global_norm(grads, hyper.max_grad_norm)
                 updates, opt_state = self.adam.update(grads, opt_state, params)
                 params = params - learning_rate * updates
                 return (params, opt_state), {**stats, "grad_norm": grad_norm}
@@ -553,13 +547,6 @@ def orthonormal_columns(a: jax.Array) -> jax.Array:
         return jax.lax.dynamic_update_index_in_dim(q, v, j, axis=1)
 
     return jax.lax.fori_loop(0, cols, add_column, jnp.zeros_like(a))
-
-
-def _clip_by_global_norm(grads: jax.Array, max_norm: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """``optax.clip_by_global_norm`` for a flat gradient, with a traced threshold; also returns the norm."""
-    norm = jnp.sqrt(jnp.sum(jnp.square(grads)))
-    scale = jnp.where(norm > max_norm, max_norm / norm, 1.0)
-    return grads * scale, norm
 
 
 # -------------------------------------------------------------------- presets

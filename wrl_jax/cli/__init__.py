@@ -12,7 +12,16 @@ The names below are re-exported so ``from wrl_jax.cli import main`` keeps workin
 from wrl_jax.agents import ALGORITHM_MODULES, get_spec
 from wrl_jax.cli.evaluate import evaluate_main, evaluate_run
 from wrl_jax.cli.machine import DEFAULT_XLA_OPT_LEVEL, apply_xla_opt_level
-from wrl_jax.cli.options import Command, EnvOptions, RunOptions, build, config_from_dict, config_to_dict, parse, validate
+from wrl_jax.cli.options import (
+    Command,
+    EnvOptions,
+    RunOptions,
+    build,
+    config_from_dict,
+    config_to_dict,
+    parse,
+    validate,
+)
 from wrl_jax.cli.train import main, report, train
 
 __all__ = [
@@ -32,4 +41,5 @@ __all__ = [
     "parse",
     "report",
     "train",
+    "validate",
 ]

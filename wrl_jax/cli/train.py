@@ -69,7 +69,9 @@ def train(command: Command) -> dict[str, Any]:
     runners = trainer.init()
     jax.block_until_ready(runners)
     init_seconds = time.perf_counter() - t0
-    result = training.run(trainer, out, metadata=metadata, resume=run.resume, stop_after=run.stop_after, runners=runners)
+    result = training.run(
+        trainer, out, metadata=metadata, resume=run.resume, stop_after=run.stop_after, runners=runners
+    )
 
     t0 = time.perf_counter()
     episodes = training.final_evaluation(trainer, result)

@@ -66,7 +66,6 @@ def egocentric_windows(blocked: jax.Array, pos: jax.Array, target: jax.Array, vi
     """The three-channel windows ``(K, 3, 2V+1, 2V+1)`` float32 of FLEET_SPEC.md."""
     radius = int(view_radius)
     side = window_size(radius)
-    num_robots = pos.shape[0]
     # Off-grid cells read as blocked: pad the grid with True, V cells on each side.
     walls = jnp.pad(blocked, radius, constant_values=True)
     occupancy = jnp.zeros(walls.shape, dtype=jnp.int32).at[pos[:, 0] + radius, pos[:, 1] + radius].add(1)
@@ -85,5 +84,80 @@ def egocentric_windows(blocked: jax.Array, pos: jax.Array, target: jax.Array, vi
     target_channel = (
         (rows[:, :, None] == target[:, 0, None, None]) & (cols[:, None, :] == target[:, 1, None, None])
     ).astype(jnp.float32)
-    del num_robots
     return jnp.stack([shelf_channel, robot_channel, target_channel], axis=1)
+
+
+# ----------------------------------------------------------------- the same windows, as bit masks
+MAX_BIT_WINDOW = 31
+"""Most window cells a mask holds: bits 0..30 of an int32 (so ``V <= 2``; larger radii use the gathers above)."""
+
+
+def bit_windows_supported(view_radius: int) -> bool:
+    """True when a ``(2V+1)^2`` window fits one int32 mask (``V <= 2``): :func:`robot_observations_from_bits` applies."""
+    return window_size(view_radius) ** 2 <= MAX_BIT_WINDOW
+
+
+def window_masks(blocked: jax.Array, view_radius: int) -> jax.Array:
+    """``(H, W)`` int32: bit ``w`` of cell ``c`` is set when window cell ``w`` around ``c`` is blocked or off-grid.
+
+    Why: every robot's shelf channel then costs one scalar gather from this table instead of a
+    ``(2V+1)^2`` gather; the table depends on the layout alone, so a batch of fleets sharing a layout
+    (``vmap`` with unbatched params) builds it once per step, from ``(2V+1)^2`` static slices of the
+    padded grid. Window cell ``w = row * (2V+1) + col`` is the offset ``(row - V, col - V)``.
+    """
+    radius = int(view_radius)
+    side = window_size(radius)
+    height, width = blocked.shape
+    walls = jnp.pad(blocked, radius, constant_values=True).astype(jnp.int32)
+    masks = jnp.zeros((height, width), dtype=jnp.int32)
+    for row in range(side):
+        for col in range(side):
+            masks = masks | (walls[row:row + height, col:col + width] << (row * side + col))
+    return masks
+
+
+def offset_masks(delta: jax.Array, view_radius: int) -> jax.Array:
+    """``delta (..., 2)`` int32 offsets -> int32 ``1 << w`` of the window cell they fall on, 0 outside the window."""
+    radius = int(view_radius)
+    side = window_size(radius)
+    inside = jnp.all(jnp.abs(delta) <= radius, axis=-1)
+    index = jnp.where(inside, (delta[..., 0] + radius) * side + delta[..., 1] + radius, 0)
+    return jnp.where(inside, jnp.left_shift(jnp.int32(1), index), 0)
+
+
+def robot_observations_from_bits(
+    shelf_masks: jax.Array,
+    pos: jax.Array,
+    target: jax.Array,
+    carrying: jax.Array,
+    view_radius: int,
+    size: int,
+) -> jax.Array:
+    """:func:`robot_observations`, bit for bit, from each robot's shelf mask (``window_masks`` at its cell).
+
+    Why: the gathers of :func:`egocentric_windows` (a ``(2V+1)^2`` dynamic slice per robot and
+    channel, plus a scatter of the occupancy grid) dominate a fleet step under ``vmap``. Here each
+    channel is one int32 mask per robot: the shelf mask is read from :func:`window_masks`, the robot
+    mask ORs ``1 << w`` over the other robots whose offset lands in the window (``K x K`` work, tiny
+    for a fleet), the target mask is one offset; the float32 window is then the masks' bits, in one
+    elementwise expansion that XLA fuses with the concatenate. Needs :func:`bit_windows_supported`.
+
+    Args:
+        shelf_masks: ``(K,)`` int32, :func:`window_masks` of the blocked grid read at each robot's cell.
+        pos, target: ``(K, 2)`` int32 robot cells and target cells; carrying: ``(K,)`` bool.
+        view_radius: ``V`` (static); size: ``N`` of the ``/ (N - 1)`` scaling (static).
+    """
+    radius = int(view_radius)
+    side = window_size(radius)
+    if not bit_windows_supported(radius):
+        raise ValueError(f"view_radius {radius} does not fit a {MAX_BIT_WINDOW}-bit window mask")
+    num_robots = pos.shape[0]
+    table = jnp.asarray(coordinate_table(size))
+    scalars = jnp.concatenate([table[pos], table[target], carrying.astype(jnp.float32)[:, None]], axis=1)
+    others = ~np.eye(num_robots, dtype=bool)
+    seen = jnp.where(others, offset_masks(pos[None, :, :] - pos[:, None, :], radius), 0)  # [i, j]: j seen by i
+    robot_masks = jax.lax.reduce(seen, np.int32(0), jax.lax.bitwise_or, (1,))
+    target_masks = offset_masks(target - pos, radius)
+    masks = jnp.stack([shelf_masks, robot_masks, target_masks], axis=1)  # (K, 3)
+    bits = (masks[:, :, None] >> jnp.arange(side * side, dtype=jnp.int32)) & 1
+    return jnp.concatenate([scalars, bits.astype(jnp.float32).reshape(num_robots, -1)], axis=1)

@@ -5,7 +5,11 @@ gymnax as ``"wrl_jax/<name>"``); the factory module is imported only when the
 name is made.
 """
 
-from wrl_jax.core.registry import register
+from wrl_jax.core.registry import register, register_evaluation
+
+# Each family's evaluation hook (wrl_jax.training.evaluation.FamilyEvaluation), used by the driver and the CLI.
+register_evaluation("warehouse", "wrl_jax.envs.warehouse.evaluation:EVALUATION")
+register_evaluation("procedural", "wrl_jax.envs.procedural.evaluation:EVALUATION")
 
 register("Warehouse-8x8-v0", "wrl_jax.envs.warehouse.registration:make_named", family="warehouse",
          map_name="8x8")
@@ -13,3 +17,4 @@ register("Warehouse-12x12-v0", "wrl_jax.envs.warehouse.registration:make_named",
          map_name="12x12")
 register("Fleet-12x12-v0", "wrl_jax.envs.fleet.registration:make_named", family="fleet", map_name="12x12")
 register("Fleet-32x32-v0", "wrl_jax.envs.fleet.registration:make_named", family="fleet", map_name="32x32")
+register("Procedural-Warehouse-v0", "wrl_jax.envs.procedural.registration:make_procedural", family="procedural")

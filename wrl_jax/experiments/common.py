@@ -33,6 +33,7 @@ import numpy as np
 
 from wrl_jax.envs.warehouse import evaluation
 from wrl_jax.training import driver as training
+from wrl_jax.training.variants import train_batch
 from wrl_jax.agents.base import Algorithm
 from wrl_jax.stats import Interval, mean_ci, t_quantile  # noqa: F401 (re-exported for the experiments)
 from wrl_jax.types import EnvParams
@@ -144,10 +145,8 @@ def train_variants(
     if hypers is not None:
         hyper = stack_trees([hypers[name] for name in names for _ in seeds])
     loop = training.LoopConfig(eval_every=eval_every, progress=False)
-    trainer = training.Trainer(algo, seeds=all_seeds, loop=loop)
-    runners = trainer.init(hyper=hyper, env_params=env_params)
-    result = training.run(trainer, None, runners=runners)
-    episodes = training.final_evaluation(trainer, result)
+    batch = train_batch(algo, all_seeds, hyper=hyper, env_params=env_params, loop=loop)
+    trainer, result, episodes = batch.trainer, batch.result, batch.episodes
     first = result.convergence.first_optimal_update(len(all_seeds))
     steps_per_update = trainer.steps_per_update
 

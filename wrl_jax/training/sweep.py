@@ -35,17 +35,9 @@ of the others, 95 % CI error bars).
 
 from __future__ import annotations
 
-import argparse
-import csv
 import dataclasses
 import itertools
-import json
 import math
-import sys
-import time
-import typing
-from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 from wrl_jax.stats import mean_half_width
@@ -252,24 +244,14 @@ def run_sweep(
     import jax
 
     from wrl_jax.training import driver as training
+    from wrl_jax.training.variants import train_batch
 
     loop = loop or training.LoopConfig()
     seeds = sweep.batch_seeds
-    if mesh is None:
-        trainer = training.Trainer(sweep.algo, seeds, loop)
-    else:
-        from wrl_jax.training import sharding
-
-        trainer = sharding.ShardedTrainer(sweep.algo, seeds, loop, mesh)
-    t0 = time.perf_counter()
     hyper, env_params = sweep.batched_inputs()
-    runners = trainer.init(hyper, env_params)
-    jax.block_until_ready(runners)
-    init_seconds = time.perf_counter() - t0
-    result = training.run(trainer, None, runners=runners)
-    t0 = time.perf_counter()
-    episodes = training.final_evaluation(trainer, result)
-    eval_seconds = time.perf_counter() - t0
+    batch = train_batch(sweep.algo, seeds, hyper=hyper, env_params=env_params, loop=loop, mesh=mesh)
+    trainer, result, episodes = batch.trainer, batch.result, batch.episodes
+    init_seconds, eval_seconds = batch.init_seconds, batch.eval_seconds
 
     n_seeds = len(sweep.seeds)
     steps = trainer.steps_per_update
@@ -328,317 +310,23 @@ def _finite(value: Any) -> float | None:
     return None if value is None or (isinstance(value, float) and math.isnan(value)) else float(value)
 
 
-# ------------------------------------------------------------------ outputs
-def _fmt(value: Any) -> str:
-    if isinstance(value, float):
-        return f"{value:g}"
-    return str(value)
+# The outputs and the command line live in their own modules; re-exported for ``wrl_jax.sweep`` users.
+from wrl_jax.training.sweep_outputs import plot_sweep, results_markdown, write_outputs  # noqa: E402
+from wrl_jax.cli.sweep import build_parser, main, parse_grid, parse_sets, parse_value  # noqa: E402
 
-
-def _fmt_ci(mean: float | None, half: float | None, percent: bool = False, digits: int = 1) -> str:
-    if mean is None:
-        return "n/a"
-    scale, unit = (100.0, "%") if percent else (1.0, "")
-    text = f"{scale * mean:,.{digits}f}{unit}"
-    if half is not None:
-        text += f" ± {scale * half:,.{digits}f}"
-    return text
-
-
-def results_markdown(result: SweepResult) -> str:
-    """The per-point table: greedy evaluation after training, mean ± 95 % CI over seeds."""
-    sweep = result.sweep
-    n = len(sweep.seeds)
-    header = (
-        sweep.fields
-        + [
-            "greedy success",
-            "greedy optimal items",
-            "seeds all-optimal",
-            "mean steps (delivered)",
-            "greedy return",
-            "train delivery (last log)",
-            "first optimal step",
-        ]
-    )
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for p in result.per_point:
-        conv = p["converged_seeds"]
-        first = "none"
-        if conv:
-            first = f"{_fmt_ci(p['first_optimal_step'], p['first_optimal_step_ci95'], digits=0)} ({conv}/{n})"
-        cells = [_fmt(p[f]) for f in sweep.fields] + [
-            _fmt_ci(p["success_rate"], p["success_rate_ci95"], percent=True),
-            _fmt_ci(p["optimal_rate"], p["optimal_rate_ci95"], percent=True),
-            f"{p['all_optimal_seeds']}/{n}",
-            _fmt_ci(p["mean_steps"], p["mean_steps_ci95"], digits=2),
-            _fmt_ci(p["mean_return"], p["mean_return_ci95"]),
-            _fmt_ci(p["train_delivery_rate"], p["train_delivery_rate_ci95"], percent=True),
-            first,
-        ]
-        lines.append("| " + " | ".join(cells) + " |")
-    t = result.timings
-    d = sweep.describe()
-    title = (
-        f"{d['algo'].upper()} sweep on {d['env']}: {d['num_points']} points x {n} seeds = {d['batch']} runs "
-        f"in one program, {t['env_steps_per_element']:,} env steps each; compile {t['compile_seconds']:.1f} s, "
-        f"train {t['train_seconds']:.1f} s ({t['env_steps_per_second'] / 1e3:,.0f}k env steps/s)"
-    )
-    note = "± is the 95 % Student-t confidence interval over seeds; 'first optimal step': env steps per seed at the " \
-        "first periodic greedy evaluation with every item at the BFS optimum (mean over the seeds that got there)."
-    return f"{title}\n\n" + "\n".join(lines) + f"\n\n{note}\n"
-
-
-def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    keys: list[str] = []
-    for row in rows:
-        keys.extend(k for k in row if k not in keys)
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=keys)
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: "" if row.get(k) is None else row.get(k) for k in keys})
-
-
-def plot_sweep(result: SweepResult, path: Path) -> None:
-    """Final greedy success rate, optimal-item rate and mean steps against the first grid field."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    sweep = result.sweep
-    x_field, others = sweep.fields[0], sweep.fields[1:]
-    xs = sweep.grid[x_field]
-    numeric = all(isinstance(v, (int, float)) for v in xs)
-    log_x = numeric and all(v > 0 for v in xs) and max(xs) / min(xs) >= 10
-    groups: dict[tuple, list[dict[str, Any]]] = {}
-    for p in result.per_point:
-        groups.setdefault(tuple(p[f] for f in others), []).append(p)
-    panels = [
-        ("success_rate", "greedy success rate (%)", 100.0),
-        ("optimal_rate", "items at the BFS optimum (%)", 100.0),
-        ("mean_steps", "mean steps (delivered)", 1.0),
-    ]
-    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 4), constrained_layout=True)
-    for ax, (key, label, scale) in zip(axes, panels):
-        for combo, points in groups.items():
-            name = ", ".join(f"{f}={_fmt(v)}" for f, v in zip(others, combo)) or None
-            x = [p[x_field] for p in points]
-            y = [math.nan if p[key] is None else scale * p[key] for p in points]
-            err = [0.0 if p[f"{key}_ci95"] is None else scale * p[f"{key}_ci95"] for p in points]
-            ax.errorbar(x if numeric else range(len(x)), y, yerr=err, marker="o", capsize=3, label=name)
-        if log_x:
-            ax.set_xscale("log")
-        if scale == 100.0:
-            ax.set_ylim(-5, 105)  # a rate: the CI of a few seeds can reach past 0-100 %
-        if not numeric:
-            ax.set_xticks(range(len(xs)), [str(v) for v in xs])
-        ax.set_xlabel(x_field)
-        ax.set_ylabel(label)
-        ax.grid(alpha=0.3)
-    if others:
-        axes[0].legend(fontsize="small")
-    d = sweep.describe()
-    fig.suptitle(
-        f"{d['algo'].upper()} on {d['env']}: mean ± 95% CI over {len(sweep.seeds)} seeds, "
-        f"{result.timings['env_steps_per_element']:,} steps each"
-    )
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def write_outputs(result: SweepResult, out: Path, command: str | None = None, plot: bool = True) -> dict[str, Any]:
-    """``results.md``, ``results.csv``, ``results.json``, ``metrics.csv`` and ``sweep.png`` in ``out``."""
-    import jax
-    import numpy as np
-
-    from wrl_jax.training import checkpoint
-
-    out.mkdir(parents=True, exist_ok=True)
-    table = results_markdown(result)
-    checkpoint.atomic_write_text(out / "results.md", table)
-    _write_csv(out / "results.csv", result.per_seed)
-    _write_csv(out / "metrics.csv", result.metric_rows)
-    data = {
-        "command": command,
-        "sweep": result.sweep.describe(),
-        "timings": result.timings,
-        "per_point": result.per_point,
-        "per_seed": result.per_seed,
-        "devices": [str(d) for d in jax.devices()],
-        "versions": {"wrl_jax": checkpoint.wrl_jax_version(), "jax": jax.__version__, "numpy": np.__version__},
-    }
-    checkpoint.atomic_write_text(out / "results.json", json.dumps(data, indent=2))
-    if plot:
-        plot_sweep(result, out / "sweep.png")
-    return data
-
-
-# ---------------------------------------------------------------- command line
-def parse_value(text: str, hint: Any = float) -> Any:
-    """A ``--grid``/``--set`` value as the field's type (``int``, ``float``, ``bool``, ``str``, ``tuple[int, ...]``)."""
-    origin = typing.get_origin(hint)
-    if origin is tuple:
-        (item,) = {a for a in typing.get_args(hint) if a is not Ellipsis}
-        return tuple(parse_value(part, item) for part in text.replace("x", ",").split(",") if part)
-    if hint is bool:
-        if text.lower() in ("1", "true", "yes"):
-            return True
-        if text.lower() in ("0", "false", "no"):
-            return False
-        raise ValueError(f"expected true or false, got {text!r}")
-    if hint is int:
-        return int(text)
-    if hint is float:
-        return float(text)
-    if typing.get_origin(hint) is typing.Literal or hint is str:
-        return text
-    return float(text)
-
-
-def _field_hint(config_cls: type, name: str) -> Any:
-    if name == "max_steps":
-        return int
-    hints = typing.get_type_hints(config_cls)
-    return hints.get(name, float)
-
-
-def parse_grid(items: Sequence[str], config_cls: type) -> dict[str, list[Any]]:
-    """``["learning_rate=0.003,0.01", "ent_coef=0.05,0.2"]`` -> ``{"learning_rate": [0.003, 0.01], ...}``."""
-    grid: dict[str, list[Any]] = {}
-    for item in items:
-        name, sep, values = item.partition("=")
-        name = name.strip().replace("-", "_")
-        if not sep or not name or not values.strip():
-            raise ValueError(f"--grid expects FIELD=V1,V2,..., got {item!r}")
-        if name in grid:
-            raise ValueError(f"--grid gives {name!r} twice")
-        hint = _field_hint(config_cls, name)
-        try:
-            grid[name] = [parse_value(v.strip(), hint) for v in values.split(",") if v.strip()]
-        except ValueError as exc:
-            raise ValueError(f"--grid {name}: {exc}") from None
-    return grid
-
-
-def parse_sets(items: Sequence[str], config_cls: type) -> tuple[dict[str, Any], dict[str, Any]]:
-    """``--set FIELD=VALUE`` items -> (config overrides, environment overrides)."""
-    config_fields = {f.name for f in dataclasses.fields(config_cls)}
-    config, env = {}, {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        name = name.strip().replace("-", "_")
-        if not sep or not name:
-            raise ValueError(f"--set expects FIELD=VALUE, got {item!r}")
-        if name in ENV_FIELDS:
-            env[name] = parse_value(value.strip(), int if name == "max_steps" else float)
-        elif name == "observe_carrying":
-            env[name] = parse_value(value.strip(), bool)
-        elif name in config_fields:
-            try:
-                config[name] = parse_value(value.strip(), _field_hint(config_cls, name))
-            except ValueError as exc:
-                raise ValueError(f"--set {name}: {exc}") from None
-        else:
-            raise ValueError(f"--set: unknown field {name!r}; config fields: {sorted(config_fields)}; "
-                             f"environment: {list(ENV_FIELDS) + ['observe_carrying']}")
-    return config, env
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m wrl_jax.sweep",
-        description="A grid of traced hyperparameters x seeds trained as one compiled program; writes a results "
-        "table (Markdown, CSV, JSON) and a plot.",
-        epilog="Example: python -m wrl_jax.sweep --algo ppo --env Warehouse-8x8-v0 --grid learning_rate=0.003,0.01 "
-        "--grid ent_coef=0.02,0.2 --grid shaping_coef=0,2 --num-seeds 4 --set total_timesteps=60000 --out runs/sweep",
-    )
-    parser.add_argument("--algo", required=True, help="ppo or dqn")
-    parser.add_argument("--env", default=None, help="registered environment (default: the algorithm's)")
-    parser.add_argument("--preset", default=None, help="base hyperparameter preset (default: the algorithm's)")
-    parser.add_argument("--grid", action="append", default=[], metavar="FIELD=V1,V2,...",
-                        help="a traced field and its values (repeat for more fields; the grid is their product)")
-    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                        help="a value for the whole sweep (static fields such as total_timesteps, hidden_sizes=64,64, "
-                        "or environment constants)")
-    parser.add_argument("--num-seeds", type=int, default=4, help="seeds per grid point")
-    parser.add_argument("--seed", type=int, default=0, help="first seed (seeds seed .. seed + num_seeds - 1)")
-    parser.add_argument("--out", default=None, help="output directory (default runs/sweep-<algo>-<time>)")
-    parser.add_argument("--eval-every", type=int, default=None, help="greedy evaluation every N updates (0: last only)")
-    parser.add_argument("--chunk-updates", type=int, default=None)
-    parser.add_argument("--log-every", type=int, default=None)
-    parser.add_argument("--devices", type=int, default=1,
-                        help="shard the batch of points x seeds over this many devices (0: all; 1: no sharding)")
-    parser.add_argument("--env-shards", type=int, default=1,
-                        help="of those devices, how many split each run's environments")
-    parser.add_argument("--no-progress", action="store_true")
-    parser.add_argument("--no-plot", action="store_true")
-    parser.add_argument("--xla-opt-level", type=int, default=None, help="XLA CPU optimization level (default 1)")
-    return parser
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m wrl_jax.sweep``; status 2 with ``error: ...`` on a bad sweep."""
-    import datetime
-
-    from wrl_jax import cli
-
-    argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser().parse_args(argv)
-    try:
-        spec = cli.get_spec(args.algo)
-        preset = args.preset or spec.default_preset
-        if preset not in spec.presets:
-            raise ValueError(f"unknown {spec.name} preset {preset!r}; choose from {sorted(spec.presets)}")
-        config_sets, env_sets = parse_sets(args.set, spec.config_cls)
-        config = dataclasses.replace(spec.presets[preset], **config_sets)
-        grid = parse_grid(args.grid, spec.config_cls)
-        if args.num_seeds < 1:
-            raise ValueError(f"--num-seeds must be at least 1, got {args.num_seeds}")
-        if args.devices < 0 or args.env_shards < 1:
-            raise ValueError("--devices must be >= 0 and --env-shards >= 1")
-        cli.apply_xla_opt_level(cli.DEFAULT_XLA_OPT_LEVEL if args.xla_opt_level is None else args.xla_opt_level)
-        sweep = Sweep(
-            algo_name=spec.name,
-            config=config,
-            env_name=args.env or spec.default_env,
-            env_overrides=env_sets,
-            grid=grid,
-            seeds=list(range(args.seed, args.seed + args.num_seeds)),
-        )
-        from wrl_jax.training import driver as training
-
-        loop = training.LoopConfig(
-            chunk_updates=args.chunk_updates,
-            eval_every=args.eval_every,
-            log_every=args.log_every,
-            progress=not args.no_progress,
-        )
-        loop.resolve(sweep.algo.num_updates)
-        mesh = None
-        if args.devices != 1 or args.env_shards != 1:
-            from wrl_jax.training import sharding
-
-            mesh = sharding.make_mesh(args.devices, args.env_shards)
-            sharding.check_layout(len(sweep.batch_seeds), getattr(config, "num_envs", None), mesh)
-            print(f"sharding over {sharding.describe(mesh)}", file=sys.stderr)
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    out = Path(args.out) if args.out else Path("runs") / (
-        f"sweep-{spec.name}-{datetime.datetime.now().strftime('%Y%m%d-%H%M%S')}"
-    )
-    wall = time.perf_counter()
-    result = run_sweep(sweep, loop, mesh)
-    result.timings["wall_seconds"] = time.perf_counter() - wall
-    command = "python -m wrl_jax.sweep " + " ".join(argv)
-    write_outputs(result, out, command, plot=not args.no_plot)
-    print(results_markdown(result))
-    plot_name = "" if args.no_plot else ", sweep.png"
-    print(f"outputs in {out}/ (results.md, results.csv, results.json, metrics.csv{plot_name})")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+__all__ = [
+    "StaticFieldError",
+    "Sweep",
+    "SweepResult",
+    "build_parser",
+    "hyper_for",
+    "main",
+    "parse_grid",
+    "parse_sets",
+    "parse_value",
+    "plot_sweep",
+    "results_markdown",
+    "run_sweep",
+    "traced_fields",
+    "write_outputs",
+]

@@ -18,6 +18,10 @@ size never recompiles.
 Importing :mod:`wrl_jax` registers ``wrl_jax/Warehouse-8x8-v0`` and
 ``wrl_jax/Warehouse-12x12-v0`` with both entry points, so ``gymnasium.make`` and
 ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")`` work.
+
+Why one module of this length: the single and the vector adapter share their
+jitted functions, packing and registration; split, each half would import
+the other's internals.
 """
 
 from __future__ import annotations

@@ -17,6 +17,10 @@ without the reset.
 ``num_actions``; it overrides the base's generic ``step`` with a cheaper one that
 splits no key (the next item is drawn from the step key itself, see
 :func:`draw_item`).
+
+Why one module of this length: the whole MDP of SPEC.md (reset, transition,
+observation, the reset draws and the params with their checks) is what the
+NumPy reference is checked against bit for bit; it reads best in one place.
 """
 
 from __future__ import annotations
@@ -183,7 +187,9 @@ class Warehouse(Environment[EnvState, EnvParams]):
         """One transition of SPEC.md, without a reset (for tests and analysis).
 
         ``key`` is unused (the single robot's transition draws nothing; pass
-        ``None``); it is there for the base class's family hook. ``info`` holds bool flags of this transition: ``collision`` (a move
+        ``None``); it is there for the base class's family hook.
+
+        ``info`` holds bool flags of this transition: ``collision`` (a move
         into a shelf), ``wall_bump`` (a move off the grid), ``picked_up`` and
         ``delivered``.
         """
@@ -257,8 +263,55 @@ def draw_item(key: jax.Array, params: EnvParams) -> jax.Array:
     ``2**-64``; for the automatic reset, which every environment pays on every
     step, that made it the largest cost of :meth:`Warehouse.step` (about x1.6
     slower at large batch, see docs/throughput.md).
+
+    For JAX's default keys the word is computed by :func:`threefry_word`, the
+    same bits as ``jax.random.bits(key, (), jnp.uint32)`` without the loop
+    JAX's CPU lowering runs (see there); other keys use ``jax.random.bits``.
     """
-    return item_from_word(jax.random.bits(key, (), jnp.uint32), params.num_items)
+    return item_from_word(random_word(key), params.num_items)
+
+
+_THREEFRY_ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
+
+
+def random_word(key: jax.Array) -> jax.Array:
+    """``jax.random.bits(key, (), jnp.uint32)``, bit for bit; unrolled for threefry keys (:func:`threefry_word`).
+
+    The fast path needs a typed threefry2x32 key (``jax.random.key``) and
+    ``jax_threefry_partitionable`` (JAX's default), whose one-word draw is
+    ``threefry2x32(key, counter 0)`` with its two output words xor-ed. Legacy
+    ``uint32[2]`` keys, other implementations and the non-partitionable mode
+    fall back to ``jax.random.bits``.
+    """
+    if (jnp.issubdtype(key.dtype, jax.dtypes.prng_key) and str(jax.random.key_impl(key)) == "threefry2x32"
+            and jax.config.jax_threefry_partitionable):
+        return threefry_word(jax.random.key_data(key))
+    return jax.random.bits(key, (), jnp.uint32)
+
+
+def threefry_word(key_data: jax.Array) -> jax.Array:
+    """The xor of Threefry-2x32's two output words for counter ``(0, 0)``: ``key_data[..., :2]`` uint32.
+
+    Why not ``jax.random.bits``: on CPU, JAX lowers threefry to a 5-iteration
+    ``while`` loop (smaller programs), so under ``vmap`` every step of every
+    environment runs a batch-sized loop with its own copies, outside the
+    step's fusions. Written out (20 rounds, 5 key injections) it is plain
+    elementwise integer arithmetic that XLA fuses into the step: x1.2 on a
+    gymnax user's loop at 4,096 environments (docs/throughput.md,
+    ``bench/env_throughput.py --gymnax``). The counter words are 0, so the
+    first injection is the key itself.
+    """
+    k0, k1 = key_data[..., 0], key_data[..., 1]
+    injected = (k0, k1, k0 ^ k1 ^ np.uint32(0x1BD11BDA))
+    x0, x1 = k0, k1
+    for block in range(5):
+        for rotation in _THREEFRY_ROTATIONS[block % 2]:
+            x0 = x0 + x1
+            x1 = (x1 << np.uint32(rotation)) | (x1 >> np.uint32(32 - rotation))
+            x1 = x0 ^ x1
+        x0 = x0 + injected[(block + 1) % 3]
+        x1 = x1 + injected[(block + 2) % 3] + np.uint32(block + 1)
+    return x0 ^ x1
 
 
 def draw_items(key: jax.Array, num_envs: int, params: EnvParams) -> jax.Array:

@@ -24,7 +24,8 @@ What one episode records (:class:`EpisodeEval`) and how it is judged:
 
 This is the warehouse family's evaluation hook (:data:`EVALUATION`, see
 :mod:`wrl_jax.training.evaluation`): the training driver and the CLI reach it
-through ``env.family`` and know nothing of items. The same function serves the periodic evaluation inside the compiled training
+through ``env.family`` and know nothing of items. The same function serves the
+periodic evaluation inside the compiled training
 loop (:func:`seed_summary`, per-seed scalars) and the final report
 (:func:`summarize`, aggregates and per-seed per-item rows, and
 :func:`format_table3`, a text table shaped like the study's Table 3).

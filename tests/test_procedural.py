@@ -1,0 +1,463 @@
+"""Procedural warehouses (issue 13): generators, solvability, pools, MovingAI loader, environment.
+
+Compiled programs are shared through module fixtures (one 5,000-layout pool
+of the default mixture serves the generator, pool and environment tests), so
+the whole file stays well under a minute on two cores.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from wrl_jax import maps
+from wrl_jax.core.observation import robot_observations
+from wrl_jax.core.registry import make
+from wrl_jax.envs.procedural import generators as gen
+from wrl_jax.envs.procedural.layout import (
+    PaddedLayout,
+    from_arrays,
+    from_layout,
+    is_solvable,
+    to_numpy_layout,
+)
+from wrl_jax.envs.procedural.movingai import load_map, movingai_layout, parse_movingai
+from wrl_jax.envs.procedural.pool import (
+    bytes_per_layout,
+    disjoint_from,
+    generate_pool,
+    pool_from_layouts,
+    pool_hashes,
+    refresh_pool,
+)
+from wrl_jax.envs.procedural.registration import make_from_layouts, make_procedural
+from wrl_jax.layout import bfs_distances, optimal_route_lengths, parse
+
+NUM_LAYOUTS = 5000
+CONFIG = gen.GeneratorConfig()
+
+
+def _slot(batch, index):
+    return jax.tree.map(lambda leaf: leaf[index], batch)
+
+
+def _square(blocked: np.ndarray) -> np.ndarray:
+    side = max(blocked.shape)
+    square = np.ones((side, side), dtype=bool)
+    square[: blocked.shape[0], : blocked.shape[1]] = blocked
+    return square
+
+
+@pytest.fixture(scope="module")
+def pool():
+    return generate_pool(jax.random.key(0), NUM_LAYOUTS, CONFIG)
+
+
+@pytest.fixture(scope="module")
+def numpy_pool(pool):
+    return jax.tree.map(np.asarray, pool)
+
+
+# ---------------------------------------------------------------- generators
+def test_generation_is_deterministic_and_keys_differ(pool):
+    again = generate_pool(jax.random.key(0), NUM_LAYOUTS, CONFIG)
+    for a, b in zip(jax.tree.leaves(pool), jax.tree.leaves(again)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    other = generate_pool(jax.random.key(1), NUM_LAYOUTS, CONFIG)
+    assert not np.isin(pool_hashes(other), pool_hashes(pool)).all()
+    assert np.mean(np.isin(pool_hashes(other), pool_hashes(pool))) < 0.01
+
+
+def _numpy_reachable(blocked: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """Cells reachable from each start, ``(N, H, W)`` bool: a plain NumPy flood fill over a batch."""
+    free = ~blocked
+    reached = np.zeros_like(free)
+    reached[np.arange(len(starts)), starts[:, 0], starts[:, 1]] = True
+    while True:
+        grown = reached.copy()
+        grown[:, 1:] |= reached[:, :-1]
+        grown[:, :-1] |= reached[:, 1:]
+        grown[:, :, 1:] |= reached[:, :, :-1]
+        grown[:, :, :-1] |= reached[:, :, 1:]
+        grown &= free
+        if (grown == reached).all():
+            return reached
+        reached = grown
+
+
+def test_every_layout_is_solvable_by_numpy(numpy_pool):
+    layouts, optimal = numpy_pool.layouts, numpy_pool.optimal
+    reached = _numpy_reachable(layouts.blocked, layouts.start)
+    rows = np.arange(NUM_LAYOUTS)
+    assert reached[rows, layouts.goal[:, 0], layouts.goal[:, 1]].all()
+    real = np.arange(CONFIG.max_items)[None, :] < layouts.num_items[:, None]
+    items_reached = reached[rows[:, None], layouts.items[..., 0], layouts.items[..., 1]]
+    assert items_reached[real].all()
+    # Pockets are filled: every free cell is reachable from the start.
+    assert (reached == ~layouts.blocked).all()
+    for index in range(400):  # wrl_jax.layout's BFS: reachability and the JAX BFS optimum
+        blocked = _square(layouts.blocked[index])
+        start, goal = tuple(layouts.start[index]), tuple(layouts.goal[index])
+        items = layouts.items[index][: layouts.num_items[index]]
+        from_start, from_goal = bfs_distances(blocked, start), bfs_distances(blocked, goal)
+        assert from_start[goal] > 0 and (from_start[items[:, 0], items[:, 1]] > 0).all()
+        expected = from_start[items[:, 0], items[:, 1]] + from_goal[items[:, 0], items[:, 1]]
+        np.testing.assert_array_equal(optimal[index][: len(items)], expected)
+
+
+def test_jax_solvability_check_agrees(pool):
+    first = _slot(pool.layouts, 0)
+    goal = np.asarray(first.goal)
+    walled = np.asarray(first.blocked).copy()
+    for d_row, d_col in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+        row, col = goal[0] + d_row, goal[1] + d_col
+        if 0 <= row < 16 and 0 <= col < 16:
+            walled[row, col] = True
+    batch = jax.tree.map(lambda *leaves: jnp.stack(leaves), first, first.replace(blocked=jnp.asarray(walled)))
+    assert jax.jit(jax.vmap(is_solvable))(batch).tolist() == [True, False]
+
+
+def test_layouts_respect_the_config(numpy_pool):
+    layouts = numpy_pool.layouts
+    assert layouts.blocked.shape == (NUM_LAYOUTS, 16, 16)
+    for lo, hi, values in ((8, 16, layouts.height), (8, 16, layouts.width), (1, 8, layouts.num_items)):
+        assert values.min() == lo and values.max() == hi
+    rows, cols = np.arange(16)[None, :, None], np.arange(16)[None, None, :]
+    off_grid = (rows >= layouts.height[:, None, None]) | (cols >= layouts.width[:, None, None])
+    assert layouts.blocked[off_grid].all()
+    for index in range(0, NUM_LAYOUTS, 7):
+        count = layouts.num_items[index]
+        cells = [tuple(layouts.start[index]), tuple(layouts.goal[index])]
+        cells += [tuple(cell) for cell in layouts.items[index][:count]]
+        assert len(set(cells)) == count + 2, f"layout {index}: marked cells collide"
+        assert (layouts.items[index][count:] == layouts.items[index][0]).all()
+
+
+def test_distinct_layouts_and_both_families(numpy_pool, pool):
+    hashes = pool_hashes(pool)
+    assert len(np.unique(hashes)) >= 0.99 * NUM_LAYOUTS
+    # The mixture holds both families: shelf floors are mostly shelf blocks (a shelf with a shelf beside
+    # it), random floors at these densities mostly isolated or short runs. Both kinds must be common.
+    shelves = numpy_pool.layouts.blocked[:, 1:-1, 1:-1] & ~(
+        (np.arange(1, 15)[None, :, None] >= numpy_pool.layouts.height[:, None, None] - 1)
+        | (np.arange(1, 15)[None, None, :] >= numpy_pool.layouts.width[:, None, None] - 1))
+    assert shelves.any(axis=(1, 2)).mean() > 0.9
+
+
+def test_shelf_floors_are_periodic_blocks_and_obstacle_floors_follow_density():
+    no_gaps = gen.GeneratorConfig(gap_rate=(0.0, 0.0))
+    dense = gen.GeneratorConfig(density=(0.3, 0.3))
+
+    @jax.jit
+    def floors(key):
+        headers = jax.random.bits(key, (256, 16), jnp.uint32)
+        words = jax.vmap(lambda h: gen.cell_words(h, CONFIG.max_shape)[0])(headers)
+        shelf = jax.vmap(lambda h, w: gen.shelf_floor(h, w, no_gaps))(headers, words)
+        obstacle = jax.vmap(lambda h, w: gen.obstacle_floor(h, w, dense))(headers, words)
+        on_floor = jax.vmap(lambda h, w: gen.in_bounds_mask(h, w, (16, 16)))(*obstacle[1:])
+        return shelf, obstacle[0], on_floor
+
+    (shelves, heights, widths), obstacles, on_floor = jax.tree.map(np.asarray, floors(jax.random.key(3)))
+    for index in range(len(shelves)):
+        floor = shelves[index][: heights[index], : widths[index]]
+        # Without gaps every shelf cell belongs to a block at least 2 long: it has a shelf neighbour.
+        padded = np.pad(floor, 1)
+        neighbour = padded[:-2, 1:-1] | padded[2:, 1:-1] | padded[1:-1, :-2] | padded[1:-1, 2:]
+        assert (neighbour[floor]).all()
+        # Aisles: some full row or full column of the floor is free.
+        assert (~floor).all(axis=1).any() or (~floor).all(axis=0).any()
+    assert abs(obstacles[on_floor].mean() - 0.3) < 0.02
+
+
+def test_bad_generator_config_is_a_clear_error():
+    with pytest.raises(ValueError, match="unknown generator family"):
+        gen.GeneratorConfig(family="maze")
+    with pytest.raises(ValueError, match="no room"):
+        gen.GeneratorConfig(min_shape=(2, 2), max_items=8)
+    with pytest.raises(ValueError, match="density"):
+        gen.GeneratorConfig(density=(0.5, 0.2))
+
+
+# ---------------------------------------------------------------- hashing, held-out, pools
+def test_layout_hash_sees_every_field_but_not_the_padding(pool):
+    layout = _slot(pool.layouts, 0)
+    count = int(layout.num_items)
+    variants = [
+        layout,
+        layout.replace(start=layout.goal, goal=layout.start),
+        layout.replace(items=layout.items[::-1]),
+        layout.replace(num_items=jnp.int32(count - 1 if count > 1 else count + 1)),
+        layout.replace(blocked=layout.blocked.at[int(layout.start[0]), int(layout.start[1])].set(True)),
+        layout.replace(items=layout.items.at[count:].set(jnp.array([5, 5], jnp.int32))),  # padding only
+    ]
+    hashes = pool_hashes(jax.tree.map(lambda *leaves: jnp.stack(leaves), *variants))
+    assert len(set(hashes[:5].tolist())) == 5 and hashes[5] == hashes[0]
+
+
+def test_heldout_stream_is_disjoint_by_hash(pool):
+    heldout = generate_pool(jax.random.key(0), NUM_LAYOUTS, CONFIG, stream="heldout")
+    train_hashes = pool_hashes(pool)
+    assert disjoint_from(heldout, train_hashes).all()
+    # The check finds what it should: plant training layouts in the held-out set.
+    planted = jax.tree.map(lambda h, t: h.at[:5].set(t[:5]), heldout.layouts, pool.layouts)
+    mask = disjoint_from(planted, train_hashes)
+    assert not mask[:5].any() and mask[5:].all()
+
+
+def test_pool_memory_per_layout(pool):
+    sizes = bytes_per_layout(pool)
+    assert sizes["layout.blocked"] == 256 and sizes["layout.items"] == 8 * 2 * 4 and sizes["optimal"] == 32
+    assert sizes["total"] == sum(value for name, value in sizes.items() if name != "total")
+
+
+def test_study_maps_convert_with_their_bfs_optimum():
+    layouts = [parse(maps.WAREHOUSE_8X8), parse(maps.WAREHOUSE_12X12)]
+    padded = [from_layout(layout, (16, 16), 20) for layout in layouts]
+    study_pool = pool_from_layouts(padded)
+    for index, layout in enumerate(layouts):
+        expected = optimal_route_lengths(layout)
+        np.testing.assert_array_equal(np.asarray(study_pool.optimal[index][: layout.num_items]), expected)
+        back = to_numpy_layout(padded[index])
+        assert back.shelves[: layout.size, : layout.size].tolist() == layout.shelves.tolist()
+    assert float(np.mean(optimal_route_lengths(layouts[0]))) == 14.0
+    with pytest.raises(ValueError, match="larger than max_shape"):
+        from_layout(layouts[1], (8, 8))
+
+
+# ---------------------------------------------------------------- environment
+@pytest.fixture(scope="module")
+def env_and_params(pool):
+    env, params = make_procedural(pool_size=NUM_LAYOUTS, max_steps=12)  # the fixture's pool, compiled once
+    np.testing.assert_array_equal(np.asarray(params.pool.layouts.blocked), np.asarray(pool.layouts.blocked))
+    return env, params
+
+
+BATCH, HORIZON = 64, 40
+
+
+@pytest.fixture(scope="module")
+def programs(env_and_params):
+    """``reset(params, key) -> state`` and ``rollout(params, state, key) -> (final, per-step outputs)``, jitted."""
+    env, _ = env_and_params
+    step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
+
+    def reset(params, key):
+        return jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(key, BATCH), params)[1]
+
+    def rollout(params, state, key):
+        def one(state, key):
+            key_action, key_step = jax.random.split(key)
+            action = jax.random.randint(key_action, (BATCH,), 0, 4)
+            obs, next_state, reward, terminated, truncated, info = step(jax.random.split(key_step, BATCH),
+                                                                        state, action, params)
+            return next_state, (state, obs, reward, terminated, truncated, info)
+
+        return jax.lax.scan(one, state, jax.random.split(key, HORIZON))
+
+    return jax.jit(reset), jax.jit(rollout)
+
+
+def test_env_steps_a_batch_on_per_env_layouts_and_resets_from_the_pool(env_and_params, programs):
+    env, params = env_and_params
+    reset, rollout = programs
+    assert env.name == "Procedural-Warehouse-v0" and env.num_actions == 4
+    assert env.action_space(params).n == 4
+    _, (states, obs, reward, terminated, truncated, info) = rollout(params, reset(params, jax.random.key(6)),
+                                                                   jax.random.key(7))
+    assert obs.shape == (HORIZON, BATCH, env.obs_size) and env.observation_space(params).contains(obs[0, 0])
+    pool = jax.tree.map(np.asarray, params.pool)
+    index = np.asarray(states.layout_index)
+    assert len(np.unique(index[0])) > 50  # per-env layouts at the first reset
+    # Every state's floor is its pool slot's, its optimum the slot's optimum for its item.
+    np.testing.assert_array_equal(np.asarray(states.blocked), pool.layouts.blocked[index])
+    np.testing.assert_array_equal(np.asarray(states.optimal),
+                                  pool.optimal[index, np.asarray(states.item_index)])
+    # max_steps=12: every env truncates at least three times in 40 steps and draws new slots.
+    done = np.asarray(terminated | truncated)
+    assert (done.sum(axis=0) >= 3).all()
+    assert (np.asarray(states.time)[1:][done[:-1]] == 0).all()
+    starts = pool.layouts.start[index[1:][done[:-1]]]
+    np.testing.assert_array_equal(np.asarray(states.pos)[1:][done[:-1]], starts)
+    assert (index[1:] != index[:-1]).sum() > 0.9 * done[:-1].sum()
+    # final_obs is the reached observation, obs the reset one, on done steps only.
+    np.testing.assert_array_equal(np.asarray(info["final_obs"])[~done], np.asarray(obs)[~done])
+    assert (np.asarray(info["final_obs"])[done] != np.asarray(obs)[done]).any(axis=-1).mean() > 0.9
+    for flag in ("collision", "wall_bump", "picked_up", "delivered"):
+        assert info[flag].dtype == jnp.bool_
+    assert np.asarray(info["wall_bump"]).any() and np.asarray(info["collision"]).any()
+    # Same key, same bits.
+    again = rollout(params, reset(params, jax.random.key(6)), jax.random.key(7))[1][2]
+    np.testing.assert_array_equal(np.asarray(again), np.asarray(reward))
+
+
+def test_refresh_keeps_episodes_in_flight_and_new_resets_use_the_new_pool(env_and_params, programs):
+    env, params = env_and_params
+    reset, rollout = programs
+    fresh = env.refresh_pool(jax.random.key(99), params)
+    assert not np.isin(pool_hashes(fresh.pool), pool_hashes(params.pool)).any()
+    state = reset(params, jax.random.key(1))
+    _, (states, _, _, terminated, truncated, _) = rollout(fresh, state, jax.random.key(2))
+    done = np.asarray(terminated | truncated)
+    first_done = done.argmax(axis=0)
+    blocked, index = np.asarray(states.blocked), np.asarray(states.layout_index)
+    old, new = np.asarray(params.pool.layouts.blocked), np.asarray(fresh.pool.layouts.blocked)
+    for env_index in range(BATCH):
+        until = first_done[env_index]
+        # Until its first reset an episode runs on the floor it started with, from the old pool ...
+        np.testing.assert_array_equal(blocked[: until + 1, env_index], old[index[: until + 1, env_index]])
+        # ... and every later episode on a slot of the refreshed pool.
+        np.testing.assert_array_equal(blocked[until + 1:, env_index], new[index[until + 1:, env_index]])
+    with pytest.raises(ValueError, match="count"):
+        refresh_pool(jax.random.key(5), params.pool, env.generator, count=0)
+
+
+def test_dynamics_match_the_study_env_on_the_padded_12x12_map():
+    """SPEC.md's rewards, flags and termination, bit for bit, with the 12x12 map padded to 16x16."""
+    layout = parse(maps.WAREHOUSE_12X12)
+    env, params = make_from_layouts([from_layout(layout, (16, 16), 20)], max_steps=300)
+    study, study_params = make("Warehouse-12x12-v0")
+    actions = jax.random.randint(jax.random.key(0), (20, 300), 0, 4)
+
+    def ours(item, acts):
+        def one(state, action):
+            _, state, reward, terminated, truncated, info = env.transition(None, state, action, params)
+            return state, (state.pos, reward, terminated, truncated, info["collision"], info["wall_bump"],
+                           info["picked_up"], info["delivered"])
+        return jax.lax.scan(one, env.reset_to(0, item, params)[1], acts)[1]
+
+    def theirs(item, acts):
+        def one(state, action):
+            _, state, reward, terminated, truncated, info = study.transition(None, state, action, study_params)
+            return state, (state.pos, reward, terminated, truncated, info["collision"], info["wall_bump"],
+                           info["picked_up"], info["delivered"])
+        return jax.lax.scan(one, study.reset_to_item(item, study_params)[1], acts)[1]
+
+    items = jnp.arange(20)
+    a, b = jax.jit(lambda items, actions: (jax.vmap(ours)(items, actions), jax.vmap(theirs)(items, actions)))(
+        items, actions)
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert np.asarray(a[5]).any() and np.asarray(a[4]).any()  # wall bumps at the padded edge, collisions
+
+
+def test_observation_is_the_fleet_robot_observation_with_off_grid_padding():
+    floor = np.zeros((3, 4), dtype=bool)
+    floor[1, 1] = True
+    layout = from_arrays(floor, (0, 3), (2, 0), [(2, 3)], max_shape=(6, 6), max_items=2)
+    env, params = make_from_layouts([layout], view_radius=1, observe_map=True)
+
+    @jax.jit
+    def probe(params):
+        obs, state = env.reset_to(0, 0, params)
+        expected = robot_observations(state.blocked, state.pos[None], jnp.array([[2, 3]]), jnp.array([False]), 1, 6)
+        _, bumped, _, _, _, info = env.transition(None, state, jnp.int32(3), params)  # right, into the padding
+        return obs, expected[0], bumped.pos, info["wall_bump"], info["collision"]
+
+    obs, expected, bumped_pos, wall_bump, collision = probe(params)
+    np.testing.assert_array_equal(np.asarray(params.reset_obs[0, 0]), np.asarray(obs))  # the auto-reset's table
+    np.testing.assert_array_equal(np.asarray(obs[: expected.shape[0]]), np.asarray(expected))
+    np.testing.assert_array_equal(np.asarray(obs[:5]), np.array([0, 3, 2, 3, 0], np.float32) / 5)
+    window = np.asarray(obs[5:14]).reshape(3, 3)  # channel 0 around (0, 3): off-grid above and to the right
+    np.testing.assert_array_equal(window, [[1, 1, 1], [0, 0, 1], [0, 0, 1]])
+    assert obs.shape == (5 + 27 + 3 * 36,)
+    full = np.asarray(obs[32:]).reshape(3, 6, 6)
+    assert full[1, 0, 3] == 1 and full[1].sum() == 1 and full[2, 2, 3] == 1 and full[0, 1, 1] == 1
+    assert bool(wall_bump) and not bool(collision)
+    np.testing.assert_array_equal(np.asarray(bumped_pos), [0, 3])
+
+
+def test_registry_make_returns_env_and_params(env_and_params):
+    env, params = make("Procedural-Warehouse-v0", pool_size=NUM_LAYOUTS, max_steps=12)
+    assert env.default_params is params and env == env_and_params[0]
+    with pytest.raises(ValueError, match="unknown option"):
+        make("Procedural-Warehouse-v0", pool_size=4, flavour="x")
+
+
+# ---------------------------------------------------------------- map files
+MOVINGAI = "type octile\nheight 4\nwidth 6\nmap\n..@@..\n......\nT.....\n.....W\n"
+
+
+def test_movingai_map_loads_with_given_or_drawn_cells(tmp_path):
+    path = tmp_path / "small.map"
+    path.write_text(MOVINGAI)
+    blocked = parse_movingai(MOVINGAI)
+    assert blocked.shape == (4, 6) and blocked.sum() == 4 and blocked[0, 2] and blocked[2, 0] and blocked[3, 5]
+    given = load_map(path, max_shape=(8, 8), start=(0, 0), goal=(3, 0), items=[(0, 5), (1, 2)])
+    assert int(given.num_items) == 2 and np.asarray(given.blocked)[4:].all()
+    drawn = load_map(path, max_shape=(8, 8), key=jax.random.key(0), num_items=3)
+    dist = bfs_distances(_square(np.asarray(drawn.blocked)), tuple(np.asarray(drawn.start)))
+    cells = np.concatenate([np.asarray(drawn.goal)[None], np.asarray(drawn.items)[:3]])
+    assert (dist[cells[:, 0], cells[:, 1]] > 0).all()
+    again = load_map(path, max_shape=(8, 8), key=jax.random.key(0), num_items=3)
+    for a, b in zip(jax.tree.leaves(again), jax.tree.leaves(drawn)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("height 4\nwidth 6\nmap\n", r"line 1: expected 'type <value>'"),
+    ("type hex\nheight 1\nwidth 1\nmap\n.\n", "map type 'hex' is not supported"),
+    ("type octile\nheight four\nwidth 6\nmap\n", "line 2: height must be a positive integer"),
+    ("type octile\nheight 2\nwidth 2\n..\n..\n", "line 4: expected 'map'"),
+    ("type octile\nheight 3\nwidth 2\nmap\n..\n..\n", "height 3 but the map has 2 rows"),
+    ("type octile\nheight 2\nwidth 2\nmap\n..\n...\n", "line 6: map row 1 has 3 cells"),
+    ("type octile\nheight 2\nwidth 2\nmap\n..\n.#\n", r"line 6, column 2: unknown character '#' at cell \(1, 1\)"),
+    ("type octile\nheight 2\n", "ends at line 2"),
+])
+def test_malformed_movingai_files_are_clear_errors(tmp_path, text, message):
+    path = tmp_path / "bad.map"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=message) as error:
+        load_map(path, key=jax.random.key(0))
+    assert str(path) in str(error.value)
+
+
+def test_bad_cells_in_a_map_are_clear_errors(tmp_path):
+    blocked = parse_movingai("type octile\nheight 3\nwidth 3\nmap\n.@.\n.@.\n.@.\n")
+    with pytest.raises(ValueError, match=r"item 0 at cell \(0, 2\) is unreachable"):
+        movingai_layout(blocked, start=(0, 0), goal=(2, 0), items=[(0, 2)])
+    with pytest.raises(ValueError, match=r"goal at cell \(1, 1\) is on a blocked cell"):
+        movingai_layout(blocked, start=(0, 0), goal=(1, 1), items=[(2, 0)])
+    with pytest.raises(ValueError, match="give all of start, goal and items"):
+        movingai_layout(blocked, start=(0, 0))
+    with pytest.raises(ValueError, match="larger than max_shape"):
+        movingai_layout(blocked, max_shape=(2, 2), key=jax.random.key(0))
+
+
+def test_ascii_map_files_load_as_layouts(tmp_path):
+    path = tmp_path / "study.txt"
+    path.write_text(maps.WAREHOUSE_8X8)
+    layout = load_map(path, max_shape=(16, 16), max_items=10)
+    assert isinstance(layout, PaddedLayout) and layout.max_shape == (16, 16) and int(layout.num_items) == 10
+    bad = tmp_path / "bad.txt"
+    bad.write_text("S . ?\n. . G\n0 . .\n")
+    with pytest.raises(ValueError, match=r"bad.txt: unknown character '\?'"):
+        load_map(bad)
+
+
+# ---------------------------------------------------------------- evaluation hook
+def test_greedy_evaluation_on_heldout_layouts(env_and_params):
+    from wrl_jax.training.evaluation import for_env
+
+    env, params = env_and_params
+    evaluation = for_env(env)
+
+    def greedy(network_params, obs):  # head for the target (rows first for "seed" 0, columns first for 1)
+        d_row, d_col = obs[2] - obs[0], obs[3] - obs[1]
+        vertical = jnp.where(d_row < 0, 0, 1)
+        horizontal = jnp.where(d_col < 0, 2, 3)
+        rows_first = (network_params == 0) & (d_row != 0) | (d_col == 0)
+        return jnp.where(rows_first, vertical, horizontal).astype(jnp.int32)
+
+    result = jax.jit(lambda p: evaluation.evaluate_seeds(greedy, jnp.arange(2), env, p))(
+        params.replace(max_steps=jnp.int32(200)))
+    result = jax.tree.map(np.asarray, result)
+    assert result.delivered.shape == (2, 64, CONFIG.max_items)
+    delivered = result.delivered & result.real
+    assert delivered.any()
+    assert (result.steps[delivered] >= result.optimal_steps[delivered]).all()  # nobody beats the BFS
+    assert (result.steps[result.real & ~result.delivered] == 200).all()
+    summary = evaluation.summarize(result, [0, 1])
+    assert summary["success_rate"] == delivered.sum() / result.real.sum()
+    assert "held-out layouts" in evaluation.format_report(summary, "greedy")

@@ -1,0 +1,460 @@
+"""The fleet environment of FLEET_SPEC.md in JAX: K robots, lifelong pick-and-place, one shared shift.
+
+The transition is split in two so the NumPy reference can replay it bit for bit:
+
+- :func:`draw_tasks` turns a key into one candidate task per robot (the only
+  randomness): ``jax.random.bits(key, (2, K), uint32)`` modulo
+  ``num_items`` (row 0: items) and ``num_stations`` (row 1: stations). Reset
+  gives every robot its candidate; a transition only robots that delivered.
+- :func:`fleet_transition` and :func:`fleet_reset` are deterministic in the
+  drawn tasks.
+
+``Fleet.step`` is the base class's: ``key_step, key_reset = split(key)``,
+the transition draws from ``key_step``, the auto-reset (on truncation) from
+``key_reset`` (see :func:`step_keys`).
+
+The conflict rule (FLEET_SPEC.md step 3) works on all robots at once: a
+``(K, K)`` table of "robot j's cell this round is robot i's proposal" and one
+of "i and j would swap", reduced over ``j``; rounds run in a
+``lax.while_loop`` until no mover is blocked (at most ``K`` rounds, since each
+round that continues removes at least one mover).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from gymnax.environments import spaces
+
+from wrl_jax.core.environment import Environment
+from wrl_jax.core.grid import MOVES_WITH_WAIT
+from wrl_jax.core.observation import (bit_windows_supported, coordinate_table, observation_size,
+                                      robot_observations, robot_observations_from_bits, window_masks)
+from wrl_jax.envs.fleet.types import FleetParams, FleetState, FleetTasks
+
+NUM_ACTIONS = 5
+"""0 up, 1 down, 2 left, 3 right, 4 wait."""
+
+WAIT = 4
+
+FLAGS = ("shelf_hit", "wall_bump", "robot_block", "picked_up", "delivered", "waited")
+"""Per-robot bool ``(K,)`` entries of a transition's ``info`` (``waited``: action 4, for the metrics)."""
+
+
+# ----------------------------------------------------------------- random draws
+_THREEFRY_ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
+
+
+def threefry2x32(k0: jax.Array, k1: jax.Array, c0: jax.Array, c1: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Threefry-2x32 (20 rounds, 5 key injections) of counters ``(c0, c1)`` under key ``(k0, k1)``, uint32.
+
+    The hash of ``jax.random``, written out. Why: JAX's CPU lowering of threefry is a 5-iteration
+    ``while`` loop, so under ``vmap`` each of the step's three draws (key split, task draw, reset
+    draw) ran a batch-sized loop outside the step's fusions, with its own copies: the largest cost
+    of a fleet step. Unrolled, it is elementwise integer arithmetic that XLA fuses. The tests check
+    its bits against ``jax.random.split`` and ``jax.random.bits``.
+    """
+    injected = (k0, k1, k0 ^ k1 ^ np.uint32(0x1BD11BDA))
+    x0, x1 = c0 + k0, c1 + k1
+    for block in range(5):
+        for rotation in _THREEFRY_ROTATIONS[block % 2]:
+            x0 = x0 + x1
+            x1 = (x1 << np.uint32(rotation)) | (x1 >> np.uint32(32 - rotation))
+            x1 = x0 ^ x1
+        x0 = x0 + injected[(block + 1) % 3]
+        x1 = x1 + injected[(block + 2) % 3] + np.uint32(block + 1)
+    return x0, x1
+
+
+def _threefry_key_data(key: jax.Array) -> jax.Array | None:
+    """``(2,)`` uint32 data of a typed threefry key under JAX's default partitionable mode, else ``None``.
+
+    Only there are :func:`threefry2x32` of counters ``(0, n)`` the bits ``jax.random`` draws; other
+    keys (legacy ``uint32[2]``, other implementations, the non-partitionable mode) use ``jax.random``.
+    """
+    if (jnp.issubdtype(key.dtype, jax.dtypes.prng_key) and str(jax.random.key_impl(key)) == "threefry2x32"
+            and jax.config.jax_threefry_partitionable):
+        return jax.random.key_data(key)
+    return None
+
+
+def random_words(key: jax.Array, count: int) -> jax.Array:
+    """``jax.random.bits(key, (count,), jnp.uint32)``, bit for bit; unrolled for threefry keys."""
+    data = _threefry_key_data(key)
+    if data is None:
+        return jax.random.bits(key, (count,), jnp.uint32)
+    x0, x1 = threefry2x32(data[0], data[1], np.uint32(0), jnp.arange(count, dtype=jnp.uint32))
+    return x0 ^ x1
+
+
+def draw_tasks(key: jax.Array, params: FleetParams, num_robots: int) -> FleetTasks:
+    """One uniform candidate ``(item, station)`` per robot from ``key`` (the documented draw method).
+
+    ``jax.random.bits(key, (2, K), uint32)`` (computed by :func:`random_words`,
+    the same bits), reduced modulo ``num_items`` (row 0) and ``num_stations``
+    (row 1). The modulo bias is below ``n / 2**32`` (< 1.5e-8 for the 62 item
+    markers), far under any sampling noise, and the program is a third of
+    ``jax.random.randint``'s, which matters since ``step`` draws twice per
+    transition (the tasks and the auto-reset's).
+    """
+    words = random_words(key, 2 * num_robots).reshape(2, num_robots)
+    bounds = jnp.stack([params.num_items, params.num_stations]).astype(jnp.uint32)[:, None]
+    drawn = words % bounds
+    return FleetTasks(item=drawn[0].astype(jnp.int32), station=drawn[1].astype(jnp.int32))
+
+
+def step_keys(key: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``(transition key, reset key)`` of ``Fleet.step(key, ...)``: ``jax.random.split(key)``, bit for bit."""
+    data = _threefry_key_data(key)
+    if data is None:
+        key_step, key_reset = jax.random.split(key)
+        return key_step, key_reset
+    x0, x1 = threefry2x32(data[0], data[1], np.uint32(0), jnp.arange(2, dtype=jnp.uint32))
+    keys = jax.random.wrap_key_data(jnp.stack([x0, x1], axis=-1), impl="threefry2x32")
+    return keys[0], keys[1]
+
+
+# ----------------------------------------------------------------- deterministic core
+def targets(state: FleetState, params: FleetParams) -> jax.Array:
+    """Each robot's current target cell ``(K, 2)``: its item while empty, its station while carrying."""
+    return jnp.where(state.carrying[:, None], params.stations[state.station], params.items[state.item])
+
+
+def target_distances(pos: jax.Array, state: FleetState, params: FleetParams) -> jax.Array:
+    """``d(pos_i, t_i)`` ``(K,)`` int32 with the targets of ``state``: BFS tables, or Manhattan if switched."""
+    rows, cols = pos[:, 0], pos[:, 1]
+    bfs = jnp.where(state.carrying, params.station_dist[state.station, rows, cols],
+                    params.item_dist[state.item, rows, cols])
+    manhattan = jnp.abs(pos - targets(state, params)).sum(axis=1).astype(jnp.int32)
+    return jnp.where(params.manhattan_shaping, manhattan, bfs)
+
+
+def propose(pos: jax.Array, action: jax.Array, shelves: jax.Array):
+    """Step 1: proposals ``q (K, 2)`` and the ``wall_bump``, ``shelf_hit`` flags.
+
+    The move is arithmetic on the action (no table gather); inside ``jit``, where actions are not
+    checked, anything outside ``0..3`` waits. The shelf test is one scalar gather from the flat grid.
+    """
+    size = shelves.shape[0]
+    d_row = (action == 1).astype(jnp.int32) - (action == 0).astype(jnp.int32)
+    d_col = (action == 3).astype(jnp.int32) - (action == 2).astype(jnp.int32)
+    moved = pos + jnp.stack([d_row, d_col], axis=-1)
+    wall_bump = jnp.any((moved < 0) | (moved >= size), axis=1)
+    inside = jnp.clip(moved, 0, size - 1)
+    shelf_hit = ~wall_bump & shelves.reshape(-1)[inside[:, 0] * size + inside[:, 1]]
+    proposal = jnp.where((wall_bump | shelf_hit)[:, None], pos, moved)
+    return proposal, wall_bump, shelf_hit
+
+
+MAX_MASK_ROBOTS = 31
+"""Most robots whose conflict rounds run on int32 bit masks (:func:`resolve_conflicts`); more use tables."""
+
+
+def resolve_conflicts(pos: jax.Array, proposal: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Steps 2-4: the robots' next cells ``(K, 2)`` and ``robot_block (K,)``.
+
+    A mover ``i`` is blocked when another robot ``j`` will be on ``q_i`` this
+    round (``f_j = q_i``) and ``j`` stays or has a lower index, or when a mover
+    ``j`` would swap cells with ``i``. All blocked movers of a round leave the
+    mover set at once; the rounds end with the first one that blocks nobody.
+    ``robot_block`` is then exactly the movers that left the set.
+    """
+    same_q = _same(proposal, proposal)  # [i, j]: q_i = q_j
+    onto = _same(proposal, pos)  # [i, j]: q_i = pos_j
+    swap = onto & _same(pos, proposal)  # [i, j]: q_i = pos_j and pos_i = q_j
+    movers = jnp.any(proposal != pos, axis=1)
+    final = _mover_rounds(movers, same_q, onto, swap)
+    return jnp.where(final[:, None], proposal, pos), movers & ~final
+
+
+def _same(a: jax.Array, b: jax.Array) -> jax.Array:
+    return jnp.all(a[:, None, :] == b[None, :, :], axis=-1)  # [i, j]: a_i == b_j
+
+
+def _mover_rounds(movers: jax.Array, same_q: jax.Array, onto: jax.Array, swap: jax.Array) -> jax.Array:
+    """The final mover set ``(K,)`` bool of FLEET_SPEC.md step 3, from the round-invariant ``(K, K)`` relations.
+
+    Why masks: the relations never change between rounds, only the mover set does, so each
+    relation row becomes an int32 mask over ``j`` once, and a round is a few ops per robot
+    (``blocked_i = i moves and (M & claims_i | ~M & stayers_i) != 0`` for the mover mask ``M``)
+    instead of a ``(K, K)`` table. Each round that blocks anyone removes at least one of at most
+    ``K`` movers, and a round that blocks nobody changes nothing, so exactly ``K`` rounds, unrolled,
+    give the fixed point: no loop, nothing for ``vmap`` to turn into a batch-wide ``while``.
+    Fleets above :data:`MAX_MASK_ROBOTS` keep boolean tables in a ``lax.while_loop``.
+    """
+    num_robots = movers.shape[0]
+    index = np.arange(num_robots)
+    lower = index[None, :] < index[:, None]  # [i, j]: j < i
+    if num_robots > MAX_MASK_ROBOTS:
+        return _mover_rounds_tables(movers, same_q & lower, onto, swap)
+    weights = jnp.asarray(np.left_shift(1, index).astype(np.int32))
+
+    def mask(table):  # [i, j] bool -> (K,) int32 with bit j set where table[i, j]
+        return jnp.sum(jnp.where(table, weights[None, :], 0), axis=1)
+
+    claims = mask((same_q & lower) | swap)  # movers j that win q_i or swap with i
+    stayers = mask(onto)  # robots j on q_i, which block i whenever j stays
+    mover_mask = jnp.sum(jnp.where(movers, weights, 0))
+    for _ in range(num_robots):
+        moving = (mover_mask & weights) != 0
+        blocked = moving & (((mover_mask & claims) | (~mover_mask & stayers)) != 0)
+        mover_mask = mover_mask & ~jnp.sum(jnp.where(blocked, weights, 0))
+    return (mover_mask & weights) != 0
+
+
+def _mover_rounds_tables(movers: jax.Array, into_lower: jax.Array, onto: jax.Array, swap: jax.Array) -> jax.Array:
+    """:func:`_mover_rounds` for large fleets: ``(K, K)`` tables, rounds in a ``lax.while_loop``."""
+
+    def blocked_movers(movers: jax.Array) -> jax.Array:
+        claimed = (movers[None, :] & into_lower) | (~movers[None, :] & onto) | (movers[None, :] & swap)
+        return movers & jnp.any(claimed, axis=1)
+
+    def round_(carry):
+        movers, blocked = carry
+        movers = movers & ~blocked
+        return movers, blocked_movers(movers)
+
+    movers, _ = jax.lax.while_loop(lambda carry: jnp.any(carry[1]), round_, (movers, blocked_movers(movers)))
+    return movers
+
+
+def reward_terms(params: FleetParams, flags: dict[str, jax.Array], shaping: jax.Array) -> jax.Array:
+    """Step 6: float32 ``(K,)`` rewards, the terms added in FLEET_SPEC.md's order."""
+    zero = jnp.zeros_like(params.step_penalty)
+    reward = jnp.broadcast_to(params.step_penalty, shaping.shape)
+    reward = reward + jnp.where(flags["shelf_hit"], params.obstacle_penalty, zero)
+    reward = reward + jnp.where(flags["wall_bump"], params.wall_penalty, zero)
+    reward = reward + jnp.where(flags["robot_block"], params.block_penalty, zero)
+    reward = reward + params.shaping_coef * shaping.astype(jnp.float32)
+    reward = reward + jnp.where(flags["picked_up"], params.pickup_reward, zero)
+    reward = reward + jnp.where(flags["delivered"], params.delivery_reward, zero)
+    return reward
+
+
+def _target_index(state: FleetState, params: FleetParams) -> jax.Array:
+    """Each robot's target as a row of :func:`_target_cells`: ``item`` while empty, ``I + station`` while carrying."""
+    return jnp.where(state.carrying, params.items.shape[0] + state.station, state.item)
+
+
+def _target_cells(params: FleetParams) -> jax.Array:
+    """``(I + G, 2)`` int32: the item rows, then the station rows (one gather finds any robot's target)."""
+    return jnp.concatenate([params.items, params.stations], axis=0)
+
+
+def _distance_rows(params: FleetParams) -> jax.Array:
+    """``((I + G) N^2,)`` int32: the item then station BFS tables, flat (one gather finds any ``d(cell, t_i)``)."""
+    return jnp.concatenate([params.item_dist, params.station_dist], axis=0).reshape(-1)
+
+
+def fleet_transition(state: FleetState, action: jax.Array, tasks: FleetTasks, params: FleetParams):
+    """One transition without reset (steps 1-8), deterministic in ``tasks``.
+
+    Returns ``(next_state, reward (K,), truncated (), flags)``; ``flags`` maps
+    each name of :data:`FLAGS` to a bool ``(K,)``. Each robot's target and its
+    distances are read with one index into the stacked item/station tables.
+    """
+    size = params.shelves.shape[0]
+    action = jnp.asarray(action, dtype=jnp.int32)
+    proposal, wall_bump, shelf_hit = propose(state.pos, action, params.shelves)
+    next_pos, robot_block = resolve_conflicts(state.pos, proposal)
+    target_row = _target_index(state, params)
+    target = _target_cells(params)[target_row]
+    on_target = jnp.all(next_pos == target, axis=1)
+    picked_up = ~state.carrying & on_target
+    delivered = state.carrying & on_target
+    table = _distance_rows(params)
+    base = target_row * (size * size)
+    bfs = (table[base + state.pos[:, 0] * size + state.pos[:, 1]]
+           - table[base + next_pos[:, 0] * size + next_pos[:, 1]])
+    manhattan = (jnp.abs(state.pos - target).sum(axis=1) - jnp.abs(next_pos - target).sum(axis=1)).astype(jnp.int32)
+    shaping = jnp.where(params.manhattan_shaping, manhattan, bfs)
+    flags = dict(shelf_hit=shelf_hit, wall_bump=wall_bump, robot_block=robot_block, picked_up=picked_up,
+                 delivered=delivered, waited=action == WAIT)
+    reward = reward_terms(params, flags, shaping)
+    time = state.time + 1
+    next_state = FleetState(
+        pos=next_pos,
+        item=jnp.where(delivered, tasks.item, state.item),
+        station=jnp.where(delivered, tasks.station, state.station),
+        carrying=(state.carrying | picked_up) & ~delivered,
+        time=time,
+    )
+    return next_state, reward, time >= params.max_steps, flags
+
+
+def fleet_reset(tasks: FleetTasks, params: FleetParams) -> FleetState:
+    """A fresh shift: robots on their starts, empty-handed, with the drawn tasks."""
+    return FleetState(pos=params.starts, item=tasks.item, station=tasks.station,
+                      carrying=jnp.zeros(params.starts.shape[0], dtype=bool), time=jnp.zeros((), jnp.int32))
+
+
+def fleet_observation(state: FleetState, params: FleetParams, view_radius: int) -> jax.Array:
+    """``(K, 5 + 3 (2V+1)^2)`` float32 observations (FLEET_SPEC.md), through :mod:`wrl_jax.core.observation`.
+
+    For ``V <= 2`` from bit masks (:func:`wrl_jax.core.observation.robot_observations_from_bits`,
+    the same bits as :func:`~wrl_jax.core.observation.robot_observations`, several times cheaper
+    under ``vmap``); the shelf masks come from a table of the layout, one gather per robot.
+    """
+    target = _target_cells(params)[_target_index(state, params)]
+    if not bit_windows_supported(view_radius):
+        return robot_observations(params.shelves, state.pos, target, state.carrying, view_radius)
+    size = params.shelves.shape[0]
+    masks = window_masks(params.shelves, view_radius).reshape(-1)[state.pos[:, 0] * size + state.pos[:, 1]]
+    return robot_observations_from_bits(masks, state.pos, target, state.carrying, view_radius, size)
+
+
+def global_state(state: FleetState, params: FleetParams) -> jax.Array:
+    """A fixed-size view of the whole fleet for centralised critics, ``(4 N^2 + 5 K + 1,)`` float32.
+
+    Four ``N x N`` planes, row-major: shelves; robot occupancy; cells some
+    robot is heading to (its current target); cells of carrying robots. Then
+    each robot's five observation scalars in robot order (who is where and
+    where it goes: the planes alone lose robot identity), then the elapsed
+    fraction of the shift ``time / max_steps`` (the value of a truncated
+    shift depends on it).
+    """
+    size = params.shelves.shape[0]
+    target = targets(state, params)
+    empty = jnp.zeros((size, size), dtype=jnp.float32)
+    robots = empty.at[state.pos[:, 0], state.pos[:, 1]].set(1.0)
+    heading = empty.at[target[:, 0], target[:, 1]].set(1.0)
+    loaded = empty.at[state.pos[:, 0], state.pos[:, 1]].max(state.carrying.astype(jnp.float32))
+    table = jnp.asarray(coordinate_table(size))  # the observation's exact scalars
+    scalars = jnp.concatenate([table[state.pos], table[target], state.carrying.astype(jnp.float32)[:, None]], axis=1)
+    elapsed = state.time.astype(jnp.float32) / params.max_steps.astype(jnp.float32)
+    planes = jnp.stack([params.shelves.astype(jnp.float32), robots, heading, loaded])
+    return jnp.concatenate([planes.reshape(-1), scalars.reshape(-1), elapsed[None]])
+
+
+# ----------------------------------------------------------------- spaces
+class MultiDiscrete(spaces.Space):
+    """``shape`` independent integer choices in ``0..n-1`` (gymnax has no MultiDiscrete)."""
+
+    def __init__(self, n: int, shape: tuple[int, ...]):
+        self.n, self.shape, self.dtype = int(n), tuple(shape), jnp.int32
+
+    def sample(self, rng: jax.Array) -> jax.Array:
+        return jax.random.randint(rng, self.shape, 0, self.n, dtype=self.dtype)
+
+    def contains(self, x: jax.Array) -> jax.Array:
+        x = jnp.asarray(x)
+        return jnp.logical_and(x.shape == self.shape, jnp.all((x >= 0) & (x < self.n)))
+
+
+# ----------------------------------------------------------------- the environment
+class Fleet(Environment[FleetState, FleetParams]):
+    """K robots on one layout (FLEET_SPEC.md). Build it with :mod:`wrl_jax.envs.fleet.registration`.
+
+    The action is a ``(K,)`` int vector: :meth:`action_space` is the
+    per-robot ``Discrete(5)`` (what a shared policy samples for each robot),
+    :meth:`multi_action_space` the joint one. ``reward`` is ``(K,)`` float32;
+    ``terminated`` (always False) and ``truncated`` are scalars; ``info``
+    holds the per-robot flags of :data:`FLAGS`.
+    """
+
+    def __init__(self, params: FleetParams, view_radius: int = 2, name: str = "Fleet"):
+        self.size = int(params.shelves.shape[0])
+        self.num_robots = int(params.starts.shape[0])
+        self.view_radius = int(view_radius)
+        self._name = name
+        super().__init__(params)
+
+    def static_config(self) -> tuple:
+        return (self._name, self.size, self.num_robots, self.view_radius)
+
+    @property
+    def name(self) -> str:
+        return self._name
+
+    @property
+    def num_actions(self) -> int:
+        return NUM_ACTIONS
+
+    @property
+    def obs_size(self) -> int:
+        return observation_size(self.view_radius)
+
+    def __repr__(self) -> str:
+        return f"Fleet({self._name!r}, size={self.size}, num_robots={self.num_robots}, view_radius={self.view_radius})"
+
+    # ---------------------------------------------------------- gymnax hooks
+    def reset_env(self, key: jax.Array, params: FleetParams) -> tuple[jax.Array, FleetState]:
+        state = fleet_reset(draw_tasks(key, params, self.num_robots), params)
+        return fleet_observation(state, params, self.view_radius), state
+
+    def transition(self, key: jax.Array, state: FleetState, action: Any, params: FleetParams):
+        self.check_action(action)
+        tasks = draw_tasks(key, params, self.num_robots)
+        next_state, reward, truncated, flags = fleet_transition(state, action, tasks, params)
+        obs = fleet_observation(next_state, params, self.view_radius)
+        return obs, next_state, reward, jnp.zeros((), dtype=bool), truncated, flags
+
+    def step(self, key: jax.Array, state: FleetState, action: Any, params: FleetParams | None = None):
+        """The base class's ``step`` (same keys, draws, outputs and bits), with a cheaper auto-reset.
+
+        The reset observation is built from the fresh state directly: its positions are the
+        layout's starts, so under ``vmap`` with shared params its shelf and robot channels are
+        computed once for the batch, and only the task-dependent parts per env.
+        """
+        params = self.default_params if params is None else params
+        self.check_action(action)
+        key_step, key_reset = step_keys(key)
+        tasks = draw_tasks(key_step, params, self.num_robots)
+        reached, reward, truncated, flags = fleet_transition(state, action, tasks, params)
+        final_obs = fleet_observation(reached, params, self.view_radius)
+        fresh = fleet_reset(draw_tasks(key_reset, params, self.num_robots), params)
+        next_state = jax.tree.map(lambda new, old: jnp.where(truncated, new, old), fresh, reached)
+        obs = jnp.where(truncated, fleet_observation(fresh, params, self.view_radius), final_obs)
+        info = {**flags, "final_obs": final_obs, "final_observation": final_obs}
+        return obs, next_state, reward, jnp.zeros((), dtype=bool), truncated, info
+
+    def get_obs(self, state: FleetState, params: FleetParams | None = None, key: jax.Array | None = None):
+        return fleet_observation(state, self.default_params if params is None else params, self.view_radius)
+
+    def global_state(self, state: FleetState, params: FleetParams | None = None) -> jax.Array:
+        """See :func:`global_state`."""
+        return global_state(state, self.default_params if params is None else params)
+
+    def global_state_size(self) -> int:
+        return 4 * self.size**2 + 5 * self.num_robots + 1
+
+    def check_action(self, action: Any) -> None:
+        """Raise ``ValueError`` for a concrete action of the wrong shape, dtype or range (no-op on tracers)."""
+        if isinstance(action, jax.core.Tracer):
+            return
+        array = np.asarray(action)
+        if array.shape != (self.num_robots,):
+            raise ValueError(f"action must have shape ({self.num_robots},), one per robot; got shape {array.shape}")
+        if not np.issubdtype(array.dtype, np.integer):
+            raise ValueError(f"action must be integers 0..4; got dtype {array.dtype}")
+        bad = np.flatnonzero((array < 0) | (array >= NUM_ACTIONS))
+        if bad.size:
+            raise ValueError(f"action {int(array[bad[0]])} of robot {int(bad[0])} is outside 0..4 "
+                             f"(0 up, 1 down, 2 left, 3 right, 4 wait)")
+
+    # ---------------------------------------------------------- spaces
+    def action_space(self, params: FleetParams | None = None) -> spaces.Discrete:
+        """Per robot: ``Discrete(5)``; the joint action is ``(K,)`` of these (:meth:`multi_action_space`)."""
+        return spaces.Discrete(NUM_ACTIONS)
+
+    def multi_action_space(self, params: FleetParams | None = None) -> MultiDiscrete:
+        return MultiDiscrete(NUM_ACTIONS, (self.num_robots,))
+
+    def observation_space(self, params: FleetParams | None = None) -> spaces.Box:
+        return spaces.Box(0.0, 1.0, (self.num_robots, self.obs_size), jnp.float32)
+
+    def global_state_space(self, params: FleetParams | None = None) -> spaces.Box:
+        return spaces.Box(0.0, 1.0, (self.global_state_size(),), jnp.float32)
+
+    def state_space(self, params: FleetParams | None = None) -> spaces.Dict:
+        n, k = self.size, self.num_robots
+        return spaces.Dict({
+            "pos": spaces.Box(0, n - 1, (k, 2), jnp.int32),
+            "item": spaces.Box(0, int(self.default_params.num_items) - 1, (k,), jnp.int32),
+            "station": spaces.Box(0, int(self.default_params.num_stations) - 1, (k,), jnp.int32),
+            "carrying": spaces.Box(0, 1, (k,), jnp.bool_),
+            "time": spaces.Discrete(int(self.default_params.max_steps) + 1),
+        })
