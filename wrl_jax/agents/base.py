@@ -118,6 +118,8 @@ class AlgoSpec:
         default_preset: preset used without ``--preset``.
         default_num_seeds: seeds trained at once by default.
         study: the study's Table 3 column for this algorithm (metric -> text), shown beside ours.
+        env_presets: environment name -> the preset used for it without ``--preset``
+            (an environment family with its own default, e.g. the procedural warehouse).
     """
 
     name: str
@@ -128,6 +130,11 @@ class AlgoSpec:
     default_preset: str = "default"
     default_num_seeds: int = 4
     study: Mapping[str, str] | None = None
+    env_presets: Mapping[str, str] = dataclasses.field(default_factory=dict)
+
+    def preset_for(self, env_name: str) -> str:
+        """The preset a command uses on ``env_name`` when ``--preset`` is not given."""
+        return self.env_presets.get(env_name, self.default_preset)
 
 
 @struct.dataclass

@@ -144,13 +144,16 @@ def parse(algo: str, argv: list[str] | None = None) -> Command:
     spec = get_spec(algo)
     argv = list(sys.argv[1:] if argv is None else argv)
     pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument("--preset", default=spec.default_preset)
+    pre.add_argument("--preset", default=None)
+    pre.add_argument("--env", default=spec.default_env)
     pre.add_argument("--out", default=None)
     pre.add_argument("--resume", action="store_true")
     known, _ = pre.parse_known_args(argv)
 
-    env_defaults = EnvOptions(env=spec.default_env)
-    run_defaults = RunOptions(preset=spec.default_preset, num_seeds=spec.default_num_seeds)
+    env_defaults = EnvOptions(env=known.env)
+    if known.preset is None:
+        known.preset = spec.preset_for(known.env)
+    run_defaults = RunOptions(preset=known.preset, num_seeds=spec.default_num_seeds)
     if known.resume:
         if known.out is None:
             raise ValueError("--resume needs --out DIR, the directory of the run to continue")

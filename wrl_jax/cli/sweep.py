@@ -127,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         spec = cli.get_spec(args.algo)
-        preset = args.preset or spec.default_preset
+        preset = args.preset or spec.preset_for(args.env or spec.default_env)
         if preset not in spec.presets:
             raise ValueError(f"unknown {spec.name} preset {preset!r}; choose from {sorted(spec.presets)}")
         config_sets, env_sets = parse_sets(args.set, spec.config_cls)

@@ -3,7 +3,8 @@
 ``wrl_jax.core.registry.make("Fleet-12x12-v0", num_robots=4)`` or
 :func:`make_fleet` for any layout. Modules: ``types`` (state, params),
 ``layout`` (parser), ``maps``, ``env`` (JAX), ``reference`` (NumPy),
-``render``, ``registration`` (factories).
+``render``, ``registration`` (factories), ``planners`` (greedy, PIBT),
+``metrics`` (vmapped shifts, throughput against ``K / L*``).
 """
 
 from wrl_jax.envs.fleet.env import Fleet, draw_tasks, fleet_reset, fleet_transition, global_state, targets

@@ -1,0 +1,398 @@
+"""Fleet throughput: robot-steps per second of the JAX fleet, with random and PIBT actions, against NumPy and POGEMA.
+
+Measured in one process, interleaved round by round (every case sees the
+same load on a shared machine), on ``Fleet-12x12-v0`` (FLEET_SPEC.md):
+
+* ``jax random``: ``jax.jit`` of a ``lax.scan`` over time of ``jax.vmap(env.step)``
+  (the full step: transition, observation, auto-reset, ``info["final_obs"]``)
+  with uniform random actions in ``0..4``, one key per env per step
+  (``jax.random.split``), everything a learner reads (``obs``, ``final_obs``,
+  reward, truncation) summed into a checksum so nothing is dropped;
+* ``jax core``: the transition alone (:func:`wrl_jax.envs.fleet.env.fleet_transition`
+  with its task draw; no observation, no reset), to show what the observation costs;
+* ``jax pibt``: the same full step with PIBT actions
+  (:func:`wrl_jax.envs.fleet.planners.plan`) and the priorities carried and
+  reset on truncation;
+* ``numpy reference``: :class:`wrl_jax.envs.fleet.reference.FleetReference`,
+  one env in a Python loop, random actions, and with NumPy PIBT actions;
+* planner alone: the jitted, vmapped JAX PIBT on a batch of recorded fleet
+  states against the NumPy PIBT of ``tests/test_fleet_planners.py`` (the
+  recursive one the tests check the JAX PIBT against, move for move) on the same states;
+* POGEMA (``pogema`` 1.4.0, lifelong mode ``on_target="restart"``) on the same
+  12x12 map (shelves as obstacles; POGEMA places robots and targets itself),
+  same robot count, view radius 2, random actions, in a subprocess of this run
+  with its own virtual environment, since POGEMA pins numpy<2 and
+  gymnasium 0.28. Made with::
+
+      python3 -m venv /tmp/pogema-venv && /tmp/pogema-venv/bin/pip install pogema
+
+  (``--pogema-python`` points elsewhere; without that interpreter the POGEMA
+  row records why it is missing).
+
+Compile time (``lower`` + ``compile``) is reported apart; a warm-up call, then
+``--repeats`` timed calls per case, median reported; robot-steps = envs x
+steps x robots. Run from the repository root::
+
+    .venv/bin/python bench/fleet_throughput.py            # writes bench/results/fleet_throughput.json
+    .venv/bin/python bench/fleet_throughput.py --quick    # smoke run
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import importlib.util
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+from wrl_jax.core.observation import observation_size  # noqa: E402
+from wrl_jax.core.registry import make  # noqa: E402
+from wrl_jax.envs.fleet import metrics, planners  # noqa: E402
+from wrl_jax.envs.fleet.env import draw_tasks, fleet_transition  # noqa: E402
+from wrl_jax.envs.fleet.reference import FleetReference  # noqa: E402
+
+ENV = "Fleet-12x12-v0"
+RESULTS = ROOT / "bench" / "results"
+POGEMA_PYTHON = "/tmp/pogema-venv/bin/python"
+
+
+def numpy_planners():
+    """The NumPy PIBT and greedy of the tests (imported from the file, which is not a package)."""
+    spec = importlib.util.spec_from_file_location("fleet_planner_tests", ROOT / "tests" / "test_fleet_planners.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+# ------------------------------------------------------------------ JAX cases
+def jax_program(env: Any, batch: int, horizon: int, mode: str) -> Callable:
+    """``(params, carry) -> carry`` after ``horizon`` steps of ``batch`` fleets; carry = (state, prio, key, sum)."""
+    num_robots = env.num_robots
+    step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
+    core = jax.vmap(fleet_transition, in_axes=(0, 0, 0, None))
+    draw = jax.vmap(draw_tasks, in_axes=(0, None, None))
+    plan = jax.vmap(planners.plan, in_axes=(None, 0, 0, None))
+    update = jax.vmap(planners.next_priorities)
+
+    def run(params, carry):
+        def one_step(carry, _):
+            state, prio, key, checksum = carry
+            key, action_key, env_key = jax.random.split(key, 3)
+            keys = jax.random.split(env_key, batch)
+            if mode == "pibt":
+                action = plan("pibt", prio, state, params)
+            else:
+                action = jax.random.randint(action_key, (batch, num_robots), 0, 5, dtype=jnp.int32)
+            if mode == "core":
+                state, reward, truncated, _ = core(state, action, draw(keys, params, num_robots), params)
+                return (state, prio, key, checksum + jnp.sum(reward)), None
+            obs, state, reward, _, truncated, info = step(keys, state, action, params)
+            if mode == "pibt":
+                prio = update(prio, info, truncated)
+            checksum = checksum + jnp.sum(obs) + jnp.sum(info["final_obs"]) + jnp.sum(reward) + jnp.sum(truncated)
+            return (state, prio, key, checksum), None
+
+        return jax.lax.scan(one_step, carry, None, length=horizon)[0]
+
+    return run
+
+
+class JaxCase:
+    def __init__(self, num_robots: int, batch: int, horizon: int, mode: str, seed: int):
+        self.num_robots, self.batch, self.horizon, self.mode = num_robots, batch, horizon, mode
+        env, self.params = make(ENV, num_robots=num_robots)
+        reset_key, run_key = jax.random.split(jax.random.key(seed))
+        _, state = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))(jax.random.split(reset_key, batch), self.params)
+        prio = jax.vmap(lambda _: planners.pibt_init(num_robots))(jnp.arange(batch))
+        self.carry = (state, prio, run_key, jnp.float32(0.0))
+        start = time.perf_counter()
+        self.fn = jax.jit(jax_program(env, batch, horizon, mode)).lower(self.params, self.carry).compile()
+        self.compile_s = time.perf_counter() - start
+        self.carry = jax.block_until_ready(self.fn(self.params, self.carry))  # warm-up
+        self.times_s: list[float] = []
+
+    @property
+    def label(self) -> str:
+        return f"jax {self.mode} K={self.num_robots} batch={self.batch}"
+
+    def time_once(self) -> None:
+        start = time.perf_counter()
+        self.carry = jax.block_until_ready(self.fn(self.params, self.carry))
+        self.times_s.append(time.perf_counter() - start)
+
+    def summary(self) -> dict:
+        robot_steps = self.batch * self.horizon * self.num_robots
+        median = statistics.median(self.times_s)
+        return {"impl": f"jax {self.mode}", "num_robots": self.num_robots, "batch": self.batch,
+                "horizon": self.horizon, "compile_s": self.compile_s, "times_s": self.times_s,
+                "robot_steps_per_s": robot_steps / median, "checksum": float(self.carry[3])}
+
+
+# ------------------------------------------------------------------ NumPy cases
+class ReferenceCase:
+    """The NumPy reference env, one fleet, random or NumPy-PIBT actions, ``steps`` transitions per timed call."""
+
+    def __init__(self, num_robots: int, steps: int, mode: str, seed: int, tests_module):
+        _, params = make(ENV, num_robots=num_robots)
+        self.ref = FleetReference.from_params(params)
+        self.num_robots, self.steps, self.mode, self.pibt = num_robots, steps, mode, tests_module.numpy_pibt
+        self.num_items, self.num_stations = int(params.num_items), int(params.num_stations)
+        self.rng = np.random.default_rng(seed)
+        _, self.state = self.ref.reset(*self.tasks())
+        self.age = np.zeros(num_robots, dtype=np.int64)
+        self.times_s: list[float] = []
+        self.deliveries = 0
+
+    def tasks(self):
+        k = self.num_robots
+        return self.rng.integers(0, self.num_items, k), self.rng.integers(0, self.num_stations, k)
+
+    def actions(self) -> np.ndarray:
+        if self.mode == "random":
+            return self.rng.integers(0, 5, self.num_robots)
+        s, ref = self.state, self.ref
+        fields = [ref.station_dist[s.station[i]] if s.carrying[i] else ref.item_dist[s.item[i]]
+                  for i in range(self.num_robots)]
+        return self.pibt(s.pos, ref.shelves, fields, [(self.age[i], -i) for i in range(self.num_robots)])
+
+    def time_once(self) -> None:
+        start = time.perf_counter()
+        for _ in range(self.steps):
+            _, self.state, _, _, truncated, info = self.ref.step(self.state, self.actions(), self.tasks(), self.tasks())
+            reached = info["picked_up"] | info["delivered"]
+            self.age = np.where(reached | truncated, 0, self.age + 1)
+            self.deliveries += int(info["delivered"].sum())
+        self.times_s.append(time.perf_counter() - start)
+
+    def summary(self) -> dict:
+        return {"impl": f"numpy reference {self.mode}", "num_robots": self.num_robots, "batch": 1,
+                "steps_per_call": self.steps, "times_s": self.times_s,
+                "robot_steps_per_s": self.steps * self.num_robots / statistics.median(self.times_s)}
+
+
+class PlannerCase:
+    """PIBT alone on recorded fleet states: JAX vmapped over ``batch`` states, or the NumPy one state at a time."""
+
+    def __init__(self, num_robots: int, batch: int, impl: str, states: dict, tests_module):
+        self.num_robots, self.batch, self.impl = num_robots, batch, impl
+        _, self.params = make(ENV, num_robots=num_robots)
+        self.states = {name: jax.tree.map(lambda x: x[:batch], value) for name, value in states.items()}
+        self.times_s: list[float] = []
+        self.compile_s = 0.0
+        if impl == "jax":
+            state = jax.tree.map(jnp.asarray, self.states["state"])
+            prio = jax.tree.map(jnp.asarray, self.states["prio"])
+            self.args = (prio, state, self.params)
+            batched = jax.vmap(planners.plan, in_axes=(None, 0, 0, None))
+            start = time.perf_counter()
+            self.fn = jax.jit(lambda p, s, params: batched("pibt", p, s, params)).lower(*self.args).compile()
+            self.compile_s = time.perf_counter() - start
+            self.fn(*self.args).block_until_ready()
+        else:
+            ref = FleetReference.from_params(self.params)
+            self.pibt, self.shelves = tests_module.numpy_pibt, ref.shelves
+            self.item_dist, self.station_dist = ref.item_dist, ref.station_dist
+
+    def time_once(self) -> None:
+        start = time.perf_counter()
+        if self.impl == "jax":
+            self.fn(*self.args).block_until_ready()
+        else:
+            s, prio = self.states["state"], self.states["prio"]
+            k = self.num_robots
+            for b in range(self.batch):
+                fields = [self.station_dist[s.station[b, i]] if s.carrying[b, i] else self.item_dist[s.item[b, i]]
+                          for i in range(k)]
+                priority = prio.age[b] * k + prio.tiebreak[b]
+                self.pibt(s.pos[b], self.shelves, fields, priority)
+        self.times_s.append(time.perf_counter() - start)
+
+    def summary(self) -> dict:
+        return {"impl": f"{self.impl} pibt planner", "num_robots": self.num_robots, "batch": self.batch,
+                "compile_s": self.compile_s, "times_s": self.times_s,
+                "robot_decisions_per_s": self.batch * self.num_robots / statistics.median(self.times_s)}
+
+
+def recorded_states(num_robots: int, count: int, seed: int) -> dict:
+    """``count`` fleet states from PIBT shifts, with random ages (NumPy arrays), for the planner-alone cases."""
+    env, params = make(ENV, num_robots=num_robots)
+    horizon = int(params.max_steps)
+    episodes = -(-count // horizon)
+    run = jax.jit(jax.vmap(metrics.rollout, in_axes=(None, None, None, 0, None)), static_argnums=(0, 2, 4))
+    _, steps = run(env, params, "pibt", jax.random.split(jax.random.key(seed), episodes), horizon)
+    state = jax.tree.map(lambda x: np.asarray(x).reshape(-1, *x.shape[2:])[:count], steps.state)
+    rng = np.random.default_rng(seed)
+    prio = planners.PibtState(age=rng.integers(0, 40, (count, num_robots)).astype(np.int32),
+                              tiebreak=np.tile(np.arange(num_robots - 1, -1, -1, dtype=np.int32), (count, 1)))
+    return {"state": state, "prio": prio}
+
+
+# ------------------------------------------------------------------ POGEMA
+POGEMA_SCRIPT = r"""
+import json, sys, time
+import numpy as np
+import pogema
+from pogema import GridConfig, pogema_v0
+args = json.loads(sys.argv[1])
+cfg = GridConfig(map=args["map"], num_agents=args["num_robots"], obs_radius=args["view_radius"],
+                 on_target="restart", max_episode_steps=args["max_steps"], seed=args["seed"])
+env = pogema_v0(grid_config=cfg)
+env.reset(seed=args["seed"])
+rng = np.random.default_rng(args["seed"])
+k = args["num_robots"]
+def run(steps):
+    start = time.perf_counter()
+    for _ in range(steps):
+        _, _, terminated, truncated, _ = env.step(rng.integers(0, 5, k).tolist())
+        if all(terminated) or all(truncated):
+            env.reset()
+    return time.perf_counter() - start
+run(200)
+times = [run(args["steps"]) for _ in range(args["repeats"])]
+obs, _ = env.reset()
+print(json.dumps({"times_s": times, "pogema": pogema.__version__, "numpy": np.__version__,
+                  "env_class": type(env.unwrapped).__name__, "obs_shape": list(np.asarray(obs[0]).shape),
+                  "obs_dtype": str(np.asarray(obs[0]).dtype)}))
+"""
+
+
+def pogema_case(python: str, num_robots: int, steps: int, repeats: int, seed: int) -> dict:
+    """POGEMA's robot-steps/s in a subprocess, or why it could not run."""
+    _, params = make(ENV, num_robots=num_robots)
+    shelves = np.asarray(params.shelves)
+    grid = "\n".join("".join("#" if cell else "." for cell in row) for row in shelves)
+    row = {"impl": "pogema lifelong random", "num_robots": num_robots, "batch": 1, "steps_per_call": steps}
+    if not Path(python).exists():
+        return {**row, "error": f"no interpreter at {python}; install with: python3 -m venv /tmp/pogema-venv && "
+                                f"/tmp/pogema-venv/bin/pip install pogema"}
+    payload = json.dumps({"map": grid, "num_robots": num_robots, "view_radius": 2, "max_steps": int(params.max_steps),
+                          "seed": seed, "steps": steps, "repeats": repeats})
+    done = subprocess.run([python, "-c", POGEMA_SCRIPT, payload], capture_output=True, text=True, timeout=900)
+    if done.returncode != 0:
+        return {**row, "error": done.stderr.strip()[-2000:]}
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    return {**row, **out, "robot_steps_per_s": steps * num_robots / statistics.median(out["times_s"])}
+
+
+# ------------------------------------------------------------------ main
+def bytes_per_robot_step(view_radius: int = 2) -> dict:
+    """What one robot-step of the full JAX step writes at least: its observation row, twice (obs and final_obs)."""
+    obs = 4 * observation_size(view_radius)
+    return {"observation_row_bytes": obs, "obs_plus_final_obs_bytes": 2 * obs,
+            "state_bytes": 4 * 2 + 4 + 4 + 1, "action_bytes": 4, "reward_bytes": 4}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--robots", type=int, nargs="+", default=[4, 8])
+    parser.add_argument("--batches", type=int, nargs="+", default=[1, 64, 1024, 8192])
+    parser.add_argument("--horizon", type=int, default=64, help="scan length of one timed call")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--reference-steps", type=int, default=300)
+    parser.add_argument("--planner-batch", type=int, default=4096, help="states for the planner-alone cases")
+    parser.add_argument("--numpy-planner-states", type=int, default=1000)
+    parser.add_argument("--pogema-python", default=POGEMA_PYTHON)
+    parser.add_argument("--pogema-steps", type=int, default=2000)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--quick", action="store_true", help="smoke run: K=4, batches 1 and 256, 2 repeats")
+    parser.add_argument("--out", type=Path, default=RESULTS / "fleet_throughput.json")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.robots, args.batches, args.repeats, args.horizon = [4], [1, 256], 2, 16
+        args.reference_steps, args.planner_batch, args.numpy_planner_states, args.pogema_steps = 50, 256, 100, 300
+    tests_module = numpy_planners()
+
+    cases: list[Any] = []
+    for k in args.robots:
+        for batch in args.batches:
+            for mode in ("random", "pibt") + (("core",) if batch == max(args.batches) else ()):
+                cases.append(JaxCase(k, batch, args.horizon, mode, args.seed))
+                print(f"compiled {cases[-1].label}: {cases[-1].compile_s:.1f} s", flush=True)
+        states = recorded_states(k, args.planner_batch, args.seed)
+        cases.append(PlannerCase(k, args.planner_batch, "jax", states, tests_module))
+        cases.append(PlannerCase(k, args.numpy_planner_states, "numpy", states, tests_module))
+        for mode in ("random", "pibt"):
+            cases.append(ReferenceCase(k, args.reference_steps, mode, args.seed, tests_module))
+    pogema_rows = {k: [] for k in args.robots}
+    loads = []
+    for round_ in range(args.repeats):  # interleaved: every case once per round
+        for case in cases:
+            case.time_once()
+        for k in args.robots:
+            pogema_rows[k].append(pogema_case(args.pogema_python, k, args.pogema_steps, 1, args.seed + round_))
+        loads.append(list(os.getloadavg()))
+        print(f"round {round_ + 1}/{args.repeats} done, load {loads[-1][0]:.1f}", flush=True)
+
+    rows = [case.summary() for case in cases]
+    for k, runs in pogema_rows.items():
+        ok = [r for r in runs if "error" not in r]
+        if ok:
+            times = [r["times_s"][0] for r in ok]
+            rows.append({**ok[0], "times_s": times,
+                         "robot_steps_per_s": args.pogema_steps * k / statistics.median(times)})
+        else:
+            rows.append(runs[0])
+    result = {"env": ENV, "rows": rows, "ratios": ratios(rows), "bytes_per_robot_step": bytes_per_robot_step(),
+              "command": " ".join([".venv/bin/python", "bench/fleet_throughput.py", *(argv or sys.argv[1:])]),
+              "load_average_per_round": loads, "machine": machine()}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    for row in rows:
+        rate = row.get("robot_steps_per_s", row.get("robot_decisions_per_s"))
+        shown = f"{rate:,.0f}" if rate is not None else row.get("error", "")[:200]
+        print(f"{row['impl']:28s} K={row['num_robots']} batch={row['batch']:>6}  {shown}")
+    print(json.dumps(result["ratios"], indent=2))
+    print(f"wrote {args.out}")
+    return 0
+
+
+def ratios(rows: list[dict]) -> dict:
+    """Speed-ups at the largest batch, per robot count, against the baselines of the same run."""
+    out = {}
+    for k in sorted({row["num_robots"] for row in rows}):
+        of = {(row["impl"], row["batch"]): row for row in rows if row["num_robots"] == k}
+        best = lambda impl: max((r for (i, _), r in of.items() if i == impl), key=lambda r: r["batch"])  # noqa: E731
+        rate = lambda impl: best(impl).get("robot_steps_per_s", best(impl).get("robot_decisions_per_s"))  # noqa: E731
+        entry = {
+            "jax_random_vs_numpy_reference_random": rate("jax random") / rate("numpy reference random"),
+            "jax_pibt_vs_numpy_reference_pibt": rate("jax pibt") / rate("numpy reference pibt"),
+            "jax_pibt_planner_vs_numpy_pibt_planner": rate("jax pibt planner") / rate("numpy pibt planner"),
+            "jax_core_vs_jax_random": rate("jax core") / rate("jax random"),
+        }
+        pogema = [r for (i, _), r in of.items() if i.startswith("pogema") and "robot_steps_per_s" in r]
+        if pogema:
+            entry["jax_random_vs_pogema_random"] = rate("jax random") / pogema[0]["robot_steps_per_s"]
+        out[f"K={k}"] = entry
+    return out
+
+
+def machine() -> dict:
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                                check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        commit = None
+    cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                if line.startswith("model name")), platform.processor())
+    return {"cpu": cpu, "cpu_count": os.cpu_count(), "python": platform.python_version(), "jax": jax.__version__,
+            "numpy": np.__version__, "xla_flags": os.environ.get("XLA_FLAGS", ""), "git_commit": commit,
+            "date_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+
+
+if __name__ == "__main__":
+    sys.exit(main())
