@@ -10,7 +10,7 @@ for name in ${@:-$ALL}; do
   echo "=== $name $(date +%T) load $(cut -d' ' -f1-3 /proc/loadavg)"
   start=$(date +%s)
   case $name in
-    table3_default)   $PY -m wrl_jax.experiments.table3 --presets default --seeds 8 --out $OUT/table3_default ;;
+    table3_default)   $PY -m wrl_jax.experiments.table3 --presets default --seeds 32 --first-seed 1000 --out $OUT/table3_default_32seeds ;;
     table3_paper_dqn) $PY -m wrl_jax.experiments.table3 --presets paper --algos dqn --seeds 8 --eval-points 25 --out $OUT/table3_paper_dqn ;;
     table3_paper_ppo) $PY -m wrl_jax.experiments.table3 --presets paper --algos ppo --seeds 8 --eval-points 25 --out $OUT/table3_paper_ppo ;;
     failure_modes)    $PY -m wrl_jax.experiments.failure_modes --seeds 8 --out $OUT/failure_modes ;;

@@ -73,11 +73,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--algos", nargs="+", default=["dqn", "ppo"], choices=["dqn", "ppo"])
     parser.add_argument("--eval-points", type=int, default=50,
                         help="greedy evaluations per run (the convergence step's resolution)")
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="seeds are first-seed .. first-seed + seeds - 1 (e.g. 1000: seeds no preset was tuned on)")
     args = parser.parse_args(argv)
     n_seeds = common.check_seeds(args.seeds, 8, args.quick)
     out = Path(args.out)
     watch = common.Stopwatch()
-    seeds = list(range(n_seeds))
+    seeds = list(range(args.first_seed, args.first_seed + n_seeds))
     results, timings, labels = {}, {}, {}
     for setting in settings(args.presets, args.algos):
         algo, env, params = build(setting, args.quick)
@@ -103,7 +105,8 @@ def main(argv: list[str] | None = None) -> int:
                                       for lab in results] + ["" for _ in studies]
     rows += [budget, wall]
     machine = common.machine_info()
-    text = (f"# Table 3, measured\n\nMean over seeds [95% {args.ci} confidence interval]; every seed's greedy "
+    text = (f"# Table 3, measured\n\nSeeds {seeds[0]}-{seeds[-1]}. "
+            f"Mean over seeds [95% {args.ci} confidence interval]; every seed's greedy "
             f"policy evaluated once on every item. Steps are over delivered episodes. Convergence: first greedy "
             f"evaluation (every ~1/{args.eval_points} of the run) with every item at the BFS optimum, over the seeds "
             f"that got there.{' QUICK RUN (tiny budgets): not a result.' if args.quick else ''}\n\n"
