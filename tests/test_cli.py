@@ -125,3 +125,15 @@ def test_train_ppo_script_help():
     assert out.returncode == 0
     for flag in ("--env", "--preset", "--num-seeds", "--total-timesteps", "--learning-rate", "--out", "--resume"):
         assert flag in out.stdout
+
+
+def test_an_environment_may_bring_its_own_default_preset(tmp_path):
+    """Without --preset, the procedural warehouse trains with PPO's 'procedural' preset; the study's maps with 'default'."""
+    procedural = cli.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--out", str(tmp_path / "a")])
+    assert procedural.run.preset == "procedural" and procedural.config.obs_encoding == "raw"
+    study = cli.parse("ppo", ["--out", str(tmp_path / "b")])
+    assert study.run.preset == "default" and study.config.obs_encoding == "onehot"
+    chosen = cli.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--preset", "default", "--out", str(tmp_path / "c")])
+    assert chosen.run.preset == "default"
+    with pytest.raises(ValueError, match="unknown environment"):
+        cli.parse("ppo", ["--env", "Nowhere-v0", "--out", str(tmp_path / "d")])
