@@ -21,10 +21,10 @@ What one JAX "step" includes (per environment; everything inside the one jitted 
    one (what PureJaxRL-style learners and this repository's PPO do;
    ``--env-keys fold_in`` folds the environment index in instead;
    ``--env-keys batched`` gives no key per environment: the step's key draws
-   one word per environment with ``wrl_jax.env.draw_items`` and the batch is
+   one word per environment with ``wrl_jax.envs.warehouse.env.draw_items`` and the batch is
    stepped with ``env.step_to_item``, as this repository's DQN does);
 3. ``env.step``: the transition, reward, termination and truncation, the
-   reset item drawn from that key (``wrl_jax.env.draw_item``: one word), the
+   reset item drawn from that key (``wrl_jax.envs.warehouse.env.draw_item``: one word), the
    auto-reset select, the observation and ``info["final_obs"]``;
 4. consuming everything a learner reads from the step: ``obs``,
    ``info["final_obs"]``, ``reward``, ``terminated`` and ``truncated`` are
@@ -38,10 +38,20 @@ Compile time (``lower`` + ``compile``) is reported apart; then one warm-up
 call, then ``--repeats`` timed calls, each ``block_until_ready``-ed, median
 reported. The environment state is carried from call to call, as in training.
 
+``--gymnax`` measures instead, in one process and interleaved: our ``env.step``
+against the generic gymnax-style step (``wrl_jax.core.environment.Environment.step``:
+split key + ``reset_env`` every step) at a large batch in the loop above, and
+the loop a gymnax user writes (``jax.random.split(key, 3)``, ``randint``
+actions, ``jax.random.split(key, n)``, ``jax.vmap(env.step)`` in ``lax.scan``)
+at 4,096 environments, part by part (its random numbers alone, the step
+alone), with the ``while`` loops and fusions of each compiled program
+(:func:`main_gymnax`; docs/throughput.md, "The gymnax pattern").
+
 Run from the repository root::
 
     .venv/bin/python bench/env_throughput.py            # full run, writes bench/results/
     .venv/bin/python bench/env_throughput.py --quick    # a smoke run (about a minute)
+    .venv/bin/python bench/env_throughput.py --gymnax --envs Warehouse-12x12-v0 --repeats 9
 """
 
 from __future__ import annotations
@@ -52,6 +62,7 @@ import importlib.metadata
 import json
 import os
 import platform
+import re
 import statistics
 import subprocess
 import sys
@@ -70,17 +81,21 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import wrl_jax  # noqa: E402
-from wrl_jax.env import Warehouse  # noqa: E402
-from wrl_jax.reference import make_reference  # noqa: E402
-from wrl_jax.types import EnvParams, EnvState  # noqa: E402
+from wrl_jax.core.environment import Environment  # noqa: E402
+from wrl_jax.envs.warehouse import registration  # noqa: E402
+from wrl_jax.envs.warehouse.env import Warehouse, draw_item, draw_items, item_from_word  # noqa: E402
+from wrl_jax.envs.warehouse.reference import make_reference  # noqa: E402
+from wrl_jax.envs.warehouse.types import EnvParams, EnvState  # noqa: E402
 
 DEFAULT_ENVS = ("Warehouse-8x8-v0", "Warehouse-12x12-v0")
 DEFAULT_BATCHES = (1, 4, 16, 64, 256, 1024, 4096, 16384, 65536)
 QUICK_BATCHES = (1, 256, 65536)
 DEFAULT_KEY_IMPLS = ("threefry2x32", "philox4x32")
 RESULTS = ROOT / "bench" / "results"
-MEASURED_FILES = ("wrl_jax/env.py", "wrl_jax/types.py", "wrl_jax/layout.py", "wrl_jax/maps.py",
-                  "wrl_jax/registry.py", "wrl_jax/reference.py", "bench/env_throughput.py")
+MEASURED_FILES = ("wrl_jax/envs/warehouse/env.py", "wrl_jax/envs/warehouse/types.py",
+                  "wrl_jax/envs/warehouse/layout.py", "wrl_jax/envs/warehouse/maps.py",
+                  "wrl_jax/envs/warehouse/registration.py", "wrl_jax/envs/warehouse/reference.py",
+                  "wrl_jax/core/environment.py", "bench/env_throughput.py")
 """The files whose code the benchmark times; uncommitted changes to them are recorded with the result."""
 
 
@@ -135,7 +150,7 @@ def make_rollout(env: Warehouse, batch: int, horizon: int, actions: str, part: s
     vstep = jax.vmap(env.step, in_axes=(0, 0, 0, None))
     vstep_to_item = jax.vmap(env.step_to_item, in_axes=(0, 0, 0, None))
     shared_key_step = jax.vmap(env.step, in_axes=(None, 0, 0, None))
-    draw = jax.vmap(wrl_jax.env.draw_item, in_axes=(0, None))
+    draw = jax.vmap(draw_item, in_axes=(0, None))
 
     def rollout(params: EnvParams, state: EnvState, key: jax.Array, checksum: jax.Array):
         key, action_key = jax.random.split(key)
@@ -146,7 +161,7 @@ def make_rollout(env: Warehouse, batch: int, horizon: int, actions: str, part: s
             key, env_key = jax.random.split(key)
             action = actions_at(source, batch, actions)
             if part == "rng_only" and env_keys == "batched":
-                items = wrl_jax.env.draw_items(env_key, batch, params)
+                items = draw_items(env_key, batch, params)
                 checksum = checksum + jnp.sum(items.astype(jnp.float32)) + jnp.sum(action.astype(jnp.float32))
                 return (state, key, checksum), None
             if part == "rng_only":
@@ -156,7 +171,7 @@ def make_rollout(env: Warehouse, batch: int, horizon: int, actions: str, part: s
             if part == "shared_key":
                 obs, state, reward, terminated, truncated, info = shared_key_step(env_key, state, action, params)
             elif env_keys == "batched":
-                items = wrl_jax.env.draw_items(env_key, batch, params)
+                items = draw_items(env_key, batch, params)
                 obs, state, reward, terminated, truncated, info = vstep_to_item(state, action, items, params)
             else:
                 keys = per_env_keys(env_key, batch, env_keys)
@@ -385,6 +400,202 @@ def breakdown_table(jax_rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+
+# ------------------------------------------------------------ gymnax mode
+GYMNAX_PARTS = {
+    "ours": "env.step (our step: the whole key goes to the reset draw, unrolled threefry)",
+    "ours_bits_loop": "env.step as before this change: the reset word from jax.random.bits (JAX's looped threefry)",
+    "generic": "the generic gymnax step, wrl_jax.core.environment.Environment.step: split key + reset_env every step",
+    "rng_only": "the user's random numbers alone: split(key, 3), randint actions, split(key, n) per-env keys",
+    "step_only": "vmap(env.step) alone: the call's keys and actions drawn once, outside the timed program",
+}
+"""The rows of ``--gymnax``: what a gymnax user's loop costs, and which part of it is ours."""
+
+
+def step_function(env: Warehouse, part: str) -> Callable:
+    """The per-environment ``step(key, state, action, params)`` a gymnax-mode row times."""
+    if part == "generic":
+        return lambda key, state, action, params: Environment.step(env, key, state, action, params)
+    if part == "ours_bits_loop":
+        def looped(key, state, action, params):
+            word = jax.random.bits(key, (), jnp.uint32)
+            return env.step_to_item(state, action, item_from_word(word, params.num_items), params)
+        return looped
+    return env.step
+
+
+def make_user_loop(env: Warehouse, batch: int, horizon: int, part: str) -> Callable:
+    """``(params, state, key, checksum) -> (state, key, checksum)``: the loop a gymnax user writes.
+
+    Each step: ``key, k_act, k_step = jax.random.split(key, 3)``; actions from
+    ``jax.random.randint(k_act, (n,), 0, num_actions)``; one key per
+    environment from ``jax.random.split(k_step, n)``; ``jax.vmap(env.step)``;
+    inside ``lax.scan``. The reward, observation and done flags are summed
+    into the carried checksum so that nothing is dropped.
+    """
+    vstep = jax.vmap(step_function(env, part if part != "step_only" else "ours"), in_axes=(0, 0, 0, None))
+
+    def checksum_of(obs, reward, terminated, truncated):
+        return jnp.sum(obs) + jnp.sum(reward) + jnp.sum((terminated | truncated).astype(jnp.float32))
+
+    def loop(params: EnvParams, state: EnvState, key: jax.Array, checksum: jax.Array, inputs=None):
+        if part == "step_only":
+            # ``inputs``: (actions, keys) of the whole call, drawn once outside the timed program.
+            def step_only(carry, inputs):
+                state, key, checksum = carry
+                obs, state, reward, terminated, truncated, _ = vstep(inputs[1], state, inputs[0], params)
+                return (state, key, checksum + checksum_of(obs, reward, terminated, truncated)), None
+
+            return jax.lax.scan(step_only, (state, key, checksum), inputs)[0]
+
+        def one_step(carry, _):
+            state, key, checksum = carry
+            key, action_key, step_key = jax.random.split(key, 3)
+            actions = jax.random.randint(action_key, (batch,), 0, env.num_actions)
+            keys = jax.random.split(step_key, batch)
+            if part == "rng_only":
+                words = jax.random.key_data(keys)[:, 0] >> 16
+                return (state, key, checksum + jnp.sum(actions + words.astype(jnp.int32)).astype(jnp.float32)), None
+            obs, state, reward, terminated, truncated, _ = vstep(keys, state, actions, params)
+            return (state, key, checksum + checksum_of(obs, reward, terminated, truncated)), None
+
+        return jax.lax.scan(one_step, (state, key, checksum), None, horizon)[0]
+
+    return loop
+
+
+def program_counts(compiled) -> dict:
+    """Per-step work XLA was left with: ``while`` loops and fusions in the optimized program (whole call)."""
+    text = compiled.as_text()
+    return {"while_loops": len(re.findall(r"\bwhile\(", text)), "fusions": len(re.findall(r"=[^=]*\bfusion\(", text))}
+
+
+@dataclass
+class GymnaxCase(JaxCase):
+    """A ``--gymnax`` row; ``pattern``: ``"user"`` (:func:`make_user_loop`) or ``"harness"`` (:func:`make_rollout`)."""
+
+    pattern: str = "user"
+    counts: dict = field(default_factory=dict)
+    _extra: tuple = ()
+
+    @property
+    def label(self) -> str:
+        return f"{self.env_name} {self.pattern} batch={self.batch} [{self.part}]"
+
+    def prepare(self, actions: str, env_keys: str, seed: int) -> None:
+        env, params = wrl_jax.make(self.env_name)
+        key = jax.random.key(seed, impl=self.key_impl)
+        reset_key, run_key = jax.random.split(key)
+        _, state = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))(jax.random.split(reset_key, self.batch), params)
+        carry = (state, run_key, jnp.float32(0.0))
+        if self.pattern == "user":
+            function = make_user_loop(env, self.batch, self.horizon, self.part)
+        else:
+            function = make_harness_variant(env, self.batch, self.horizon, actions, self.part)
+        extra = ()
+        if self.part == "step_only":
+            action_key, keys_key = jax.random.split(jax.random.fold_in(key, 1))
+            extra = (jax.block_until_ready((
+                jax.random.randint(action_key, (self.horizon, self.batch), 0, env.num_actions),
+                jax.random.split(keys_key, (self.horizon, self.batch)))),)
+        start = time.perf_counter()
+        compiled = jax.jit(function).lower(params, *carry, *extra).compile()
+        self.compile_s = time.perf_counter() - start
+        self.counts = program_counts(compiled)
+        self._extra = extra
+        carry = jax.block_until_ready(compiled(params, *carry, *extra))
+        self._fn, self._params, self._carry = compiled, params, carry
+
+    def time_once(self) -> None:
+        start, cpu_start = time.perf_counter(), time.process_time()
+        carry = jax.block_until_ready(self._fn(self._params, *self._carry, *self._extra))
+        self.times_s.append(time.perf_counter() - start)
+        self.cpu_s.append(time.process_time() - cpu_start)
+        self._carry = carry
+        self.checksum = float(carry[2])
+
+    def summary(self) -> dict:
+        return {**super().summary(), "pattern": self.pattern, **self.counts}
+
+
+def make_harness_variant(env: Warehouse, batch: int, horizon: int, actions: str, part: str) -> Callable:
+    """:func:`make_rollout` (the table's loop: packed actions, a split key per environment) with ``part``'s step."""
+    # make_rollout vmaps env.step: give it this part's step on a shallow copy of the environment.
+    variant = object.__new__(type(env))
+    variant.__dict__.update(env.__dict__)
+    variant.step = step_function(env, part)
+    return make_rollout(variant, batch, horizon, actions)
+
+
+def gymnax_cases(args: argparse.Namespace) -> list[GymnaxCase]:
+    impl = args.key_impls[0]
+    cases = []
+    for name in args.envs:
+        large = args.gymnax_large_batch
+        for part in ("ours", "ours_bits_loop", "generic"):
+            cases.append(GymnaxCase(name, impl, large, horizon_for(large, args), part, pattern="harness"))
+        user = args.gymnax_user_batch
+        for part in GYMNAX_PARTS:
+            cases.append(GymnaxCase(name, impl, user, horizon_for(user, args), part, pattern="user"))
+    return cases
+
+
+def gymnax_table(rows: list[dict]) -> str:
+    """Each gymnax-mode row: steps/s (median and best call), cost per batch step, ratios to ``ours``.
+
+    On a shared machine other processes stretch some calls several-fold, so
+    the ratios are given twice: by the best call of each row (the least
+    disturbed) and by the median process CPU time (the work, whatever the wait).
+    """
+    def best(row):
+        return row["steps_per_call"] / min(row["times_s"])
+
+    ours = {(row["env_name"], row["pattern"], row["batch"]): row for row in rows if row["part"] == "ours"}
+    lines = [
+        ("| environment | loop | batch | step | steps/s (median) | steps/s (best) | us per batch step (best) "
+         "| x ours (best) | x ours (CPU time) | while loops | fusions | compile s |"),
+        "|---|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for row in rows:
+        base = ours[(row["env_name"], row["pattern"], row["batch"])]
+        loop = "gymnax user's loop" if row["pattern"] == "user" else "table's loop (packed actions)"
+        lines.append(f"| {row['env_name']} | {loop} | {row['batch']:,} | {row['part']}: {GYMNAX_PARTS[row['part']]} | "
+                     f"{row['steps_per_s']:,.0f} | {best(row):,.0f} | {1e6 * row['batch'] / best(row):,.1f} | "
+                     f"{best(row) / best(base):.2f} | {row['steps_per_cpu_s'] / base['steps_per_cpu_s']:.2f} | "
+                     f"{row['while_loops']} | {row['fusions']} | {row['compile_s']:.2f} |")
+    return "\n".join(lines)
+
+
+def main_gymnax(args: argparse.Namespace, command: str) -> dict:
+    """``--gymnax``: our step against the generic gymnax step, and a gymnax user's loop part by part."""
+    load_before = load_average()
+    cases = gymnax_cases(args)
+    for case in cases:
+        case.prepare(args.actions, args.env_keys, args.seed)
+        print(f"compiled {case.label:56s} horizon {case.horizon:5d}  {case.compile_s:5.2f} s  {case.counts}",
+              flush=True)
+    for round_index in range(args.repeats):
+        for case in cases:
+            case.time_once()
+        print(f"round {round_index + 1}/{args.repeats} done, load average {load_average()}", flush=True)
+    rows = [case.summary() for case in cases]
+    table = gymnax_table(rows)
+    settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+    result = {"command": command, "settings": settings,
+              "parts": GYMNAX_PARTS, "machine": machine_info(), "load_average_before": load_before,
+              "load_average_after": load_average(), "jax": rows, "table_markdown": table}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    args.out.with_suffix(".md").write_text(
+        f"Command: `{command}`\n\nMachine: {result['machine']['cpu']} ({result['machine']['cpu_count']} CPUs), "
+        f"jax {jax.__version__}, {args.key_impls[0]} keys, load average before/after {load_before} / "
+        f"{result['load_average_after']}; interleaved rounds, median of {args.repeats}\n\n{table}\n")
+    print()
+    print(table)
+    print(f"\nwrote {args.out} and {args.out.with_suffix('.md')}")
+    return result
+
+
 # ------------------------------------------------------------------------ main
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
@@ -411,6 +622,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--breakdown", action=argparse.BooleanOptionalAction, default=None,
                         help="also time the parts of a step at the largest batch (default: on, off with --quick)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--gymnax", action="store_true",
+                        help="instead of the table: our step against the generic gymnax step, and a gymnax user's "
+                             "loop (split + randint + vmap(env.step) in lax.scan) part by part; writes "
+                             "bench/results/env_throughput_gymnax.{json,md}")
+    parser.add_argument("--gymnax-large-batch", type=int, default=65536, help="--gymnax: the large batch")
+    parser.add_argument("--gymnax-user-batch", type=int, default=4096, help="--gymnax: the user loop's batch")
     parser.add_argument("--quick", action="store_true",
                         help="smoke run: batches 1 256 65536, 3 repeats, fewer steps")
     parser.add_argument("--out", type=Path, default=None,
@@ -428,12 +645,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             setattr(args, name, value)
     args.vector_sizes = args.vector_sizes if args.vector_sizes is not None else ([16] if quick else [16, 256])
     args.breakdown = (not quick) if args.breakdown is None else args.breakdown
+    if args.out is None and args.gymnax:
+        args.out = RESULTS / ("env_throughput_gymnax_quick.json" if quick else "env_throughput_gymnax.json")
     if args.out is None:
         args.out = RESULTS / ("env_throughput_quick.json" if quick else "env_throughput.json")
     if args.out.is_dir() or args.out.suffix != ".json":
         parser.error(f"--out must be a .json file path (the .md table is written beside it), got {args.out}")
     for name in args.envs:
-        wrl_jax.registry.spec(name)  # a clear error for an unknown name, before any work
+        registration.spec(name)  # a clear error for an unknown name, before any work
     for impl in args.key_impls:
         try:
             jax.random.key(0, impl=impl)
@@ -459,8 +678,10 @@ def horizon_for(batch: int, args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> dict:
     args = parse_args(argv)
     command = " ".join([Path(sys.executable).name, *sys.argv]) if argv is None else "main(" + repr(argv) + ")"
-    load_before = load_average()
     print(f"# env throughput: {command}", flush=True)
+    if args.gymnax:
+        return main_gymnax(args, command)
+    load_before = load_average()
 
     jax_cases = [JaxCase(name, impl, batch, horizon_for(batch, args))
                  for name in args.envs for impl in args.key_impls for batch in args.batch_sizes]

@@ -17,6 +17,9 @@ from wrl_jax.envs.warehouse.render import record_episode, render_ascii, render_f
 from wrl_jax.envs.warehouse.types import EnvParams, EnvState
 from wrl_jax.wrappers.legacy import LegacyStepAPI
 
+# The module names the package had before the move (``wrl_jax.registry.spec(...)``, ``wrl_jax.env.Warehouse``...).
+from wrl_jax import env, gym_env, layout, registry, render, routes, types  # noqa: E402,F401
+
 # Registers the Gymnasium ids wrl_jax/Warehouse-8x8-v0 and wrl_jax/Warehouse-12x12-v0.
 from wrl_jax.wrappers.gymnasium import WarehouseGymEnv, WarehouseVectorEnv  # noqa: E402
 

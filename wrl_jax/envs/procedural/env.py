@@ -66,6 +66,11 @@ class ProceduralParams:
     pickup_reward: jax.Array
     delivery_reward: jax.Array
 
+    @property
+    def max_steps_in_episode(self) -> jax.Array:
+        """gymnax's name for :attr:`max_steps` (gymnax wrappers and rejax read it)."""
+        return self.max_steps
+
 
 @struct.dataclass
 class ProceduralState:

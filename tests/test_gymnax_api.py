@@ -1,0 +1,310 @@
+"""gymnax 1.0 conformance of every registered environment (issue 12).
+
+Parametrized over ``wrl_jax.registered_names()`` at collection time, so a new
+family is checked as soon as :mod:`wrl_jax.envs` registers it. gymnax
+consumers (PureJaxRL-style code, rejax, gymnax's own wrappers) rely on exactly
+these properties: ``gymnax.make`` returns the default params, spaces are
+callable without arguments and describe the arrays ``reset``/``step`` really
+produce, ``step`` returns six values with the reached observation in
+``info["final_observation"]``, truncation happens at
+``params.max_steps_in_episode``, and environment objects are static ``jit``
+arguments that survive ``copy.deepcopy`` and ``pickle`` (rejax deep-copies
+its config, env included).
+
+One jitted, vmapped rollout per environment (a module-scoped fixture) feeds
+most checks, so each environment compiles only a few small programs.
+"""
+
+from __future__ import annotations
+
+import copy
+import importlib
+import pickle
+
+import gymnax
+import gymnax.wrappers
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from gymnax.environments import spaces
+
+import wrl_jax
+from wrl_jax.core.registry import GYMNAX_PREFIX
+
+NAMES = wrl_jax.registered_names()
+BATCH = 4
+EXTRA_STEPS = 3
+"""The rollout runs ``max_steps_in_episode + EXTRA_STEPS`` steps, so every environment passes the time limit."""
+
+
+def num_robots(env) -> int | None:
+    """``K`` for a multi-robot environment (its action is a ``(K,)`` vector), ``None`` for one robot.
+
+    Detected by the ``num_robots`` attribute the fleet families expose; a
+    family without it is single-robot (a scalar action).
+    """
+    robots = getattr(env, "num_robots", None)
+    return None if robots is None else int(robots)
+
+
+def sample_action(env, key: jax.Array) -> jax.Array:
+    """A uniform random action of the right shape: a scalar, or one per robot."""
+    space = env.action_space()
+    robots = num_robots(env)
+    if robots is None:
+        return space.sample(key)
+    return jax.vmap(space.sample)(jax.random.split(key, robots))
+
+
+def tree_equal(a, b) -> bool:
+    leaves_a, tree_a = jax.tree_util.tree_flatten(a)
+    leaves_b, tree_b = jax.tree_util.tree_flatten(b)
+    return tree_a == tree_b and all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(leaves_a, leaves_b))
+
+
+def make_rollout(env, params, length: int, arity: dict):
+    """``keys -> trace``: ``BATCH`` environments, random actions, ``length`` steps of ``jax.vmap(env.step)``.
+
+    The trace holds every output a conformance check reads: the 6-value step,
+    the 5-value :class:`wrl_jax.LegacyStepAPI` step on the same inputs, the
+    observation the transition alone reaches (``env.transition`` with the
+    first half of the split key, the base class's convention; the warehouse's
+    transition ignores its key) and whether each observation lies in the
+    space. The duplicated work is one computation for XLA (common
+    subexpressions), so a single compile serves every check. ``arity``
+    receives the number of values each ``step`` returned, at trace time.
+    """
+    obs_space = env.observation_space(params)
+    action_space = env.action_space(params)
+    legacy = wrl_jax.LegacyStepAPI(env)
+
+    def one_env(key):
+        reset_key, run_key = jax.random.split(key)
+        obs0, state0 = env.reset(reset_key, params)
+
+        def step(carry, key):
+            _, state = carry
+            action_key, step_key = jax.random.split(key)
+            action = sample_action(env, action_key)
+            out = env.step(step_key, state, action, params)
+            old = legacy.step(step_key, state, action, params)
+            arity["step"], arity["legacy"] = len(out), len(old)
+            next_obs, next_state, reward, terminated, truncated, info = out
+            reached = env.transition(jax.random.split(step_key)[0], state, action, params)[0]
+            record = {
+                "obs": next_obs,
+                "final_obs": info["final_obs"],
+                "final_observation": info["final_observation"],
+                "reached": reached,
+                "reward": reward,
+                "terminated": terminated,
+                "truncated": truncated,
+                "action": action,
+                "action_ok": jnp.all(action_space.contains(action)),
+                "obs_ok": obs_space.contains(next_obs),
+                "final_ok": obs_space.contains(info["final_obs"]),
+                "time": getattr(next_state, "time", jnp.zeros((), jnp.int32)),
+                "legacy_obs": old[0],
+                "legacy_reward": old[2],
+                "legacy_done": old[3],
+                "legacy_terminated": old[4]["terminated"],
+                "legacy_truncated": old[4]["truncated"],
+            }
+            return (next_obs, next_state), record
+
+        _, trace = jax.lax.scan(step, (obs0, state0), jax.random.split(run_key, length))
+        trace["obs0"], trace["obs0_ok"] = obs0, obs_space.contains(obs0)
+        return trace
+
+    return jax.jit(jax.vmap(one_env))
+
+
+@pytest.fixture(scope="module", params=NAMES)
+def case(request):
+    """``(name, env, params, trace)``: the gymnax-made environment and one rollout of it (numpy arrays).
+
+    ``trace["arity"]`` holds the number of values ``step`` and the legacy view returned.
+    """
+    name = request.param
+    env, params = gymnax.make(GYMNAX_PREFIX + name)
+    assert hasattr(params, "max_steps_in_episode"), (
+        f"{name}: its params have no max_steps_in_episode (gymnax's truncation length, read by rejax and wrappers)")
+    length = int(params.max_steps_in_episode) + EXTRA_STEPS
+    arity: dict = {}
+    trace = make_rollout(env, params, length, arity)(jax.random.split(jax.random.key(0), BATCH))
+    trace = jax.tree.map(np.asarray, trace)
+    trace["arity"] = arity
+    return name, env, params, trace
+
+
+# ---------------------------------------------------------------- registration
+def test_names_are_registered_with_gymnax():
+    assert NAMES, "no environment registered"
+    for name in NAMES:
+        assert GYMNAX_PREFIX + name in gymnax.registered_envs
+
+
+def test_gymnax_make_returns_default_params(case):
+    name, env, params, _ = case
+    assert tree_equal(params, env.default_params)
+    ours, our_params = wrl_jax.make(name)
+    assert env == ours and tree_equal(params, our_params)
+    assert isinstance(env, gymnax.environments.environment.Environment)
+    assert isinstance(env.name, str) and env.name
+
+
+def test_reloading_the_registrations_does_not_raise():
+    before = wrl_jax.registered_names()
+    importlib.reload(wrl_jax.envs)
+    importlib.reload(wrl_jax.envs)
+    assert wrl_jax.registered_names() == before
+    assert all(gymnax.registered_envs.count(GYMNAX_PREFIX + n) == 1 for n in before)
+
+
+# ---------------------------------------------------------------------- spaces
+def test_spaces_callable_with_and_without_params(case):
+    _, env, params, _ = case
+    action_space, obs_space = env.action_space(), env.observation_space()
+    assert isinstance(action_space, spaces.Discrete)
+    assert action_space.n == env.num_actions
+    assert isinstance(obs_space, spaces.Space)
+    assert repr(env.action_space(params)) == repr(action_space)
+    assert repr(env.observation_space(params)) == repr(obs_space)
+
+
+def test_spaces_match_the_real_arrays(case):
+    _, env, params, trace = case
+    obs_space, action_space = env.observation_space(), env.action_space()
+    robots = num_robots(env)
+    length = int(params.max_steps_in_episode) + EXTRA_STEPS
+    # vmap over BATCH, scan over time: leading axes (BATCH,) for reset, (BATCH, length) for step.
+    assert trace["obs0"].shape == (BATCH, *obs_space.shape)
+    for key in ("obs", "final_obs", "final_observation"):
+        assert trace[key].shape == (BATCH, length, *obs_space.shape), key
+        assert trace[key].dtype == np.dtype(obs_space.dtype), key
+    action_shape = () if robots is None else (robots,)
+    assert trace["action"].shape == (BATCH, length, *action_shape)
+    assert trace["action"].dtype == np.dtype(action_space.dtype)
+    assert trace["terminated"].dtype == np.bool_ and trace["truncated"].dtype == np.bool_
+    assert np.issubdtype(trace["reward"].dtype, np.floating)
+    # A single robot gets a scalar reward; a fleet gets a scalar or one per robot.
+    assert trace["reward"].shape[2:] in {(), action_shape}
+
+
+def test_observations_lie_in_the_space(case):
+    _, _, _, trace = case
+    assert trace["obs0_ok"].all()
+    assert trace["obs_ok"].all() and trace["final_ok"].all()
+    assert trace["action_ok"].all()
+
+
+# ------------------------------------------------------------------------ step
+def test_final_observation_is_the_reached_one_on_auto_reset(case):
+    _, _, _, trace = case
+    done = trace["terminated"] | trace["truncated"]
+    np.testing.assert_array_equal(trace["final_obs"], trace["final_observation"])
+    np.testing.assert_array_equal(trace["final_obs"], trace["reached"])
+    # Not done: the returned observation is the reached one. Done: a fresh episode begins.
+    np.testing.assert_array_equal(trace["obs"][~done], trace["final_obs"][~done])
+    assert done.any(), "the rollout passes the time limit, so some step must end an episode"
+    assert (trace["time"][done] == 0).all(), "after an auto-reset the state starts a new episode"
+    differs = np.any(trace["obs"][done] != trace["final_obs"][done], axis=tuple(range(1, trace["obs"].ndim - 1)))
+    assert differs.any(), "on auto-reset steps obs should be the new episode's, not the reached one"
+
+
+def test_truncation_happens_at_max_steps_in_episode(case):
+    _, _, params, trace = case
+    max_steps = int(params.max_steps_in_episode)
+    terminated, truncated = trace["terminated"], trace["truncated"]
+    for env_index in range(BATCH):
+        length = 0
+        for t in range(terminated.shape[1]):
+            length += 1
+            if truncated[env_index, t]:
+                assert length == max_steps, f"env {env_index} truncated after {length} steps, not {max_steps}"
+            if length == max_steps:
+                assert terminated[env_index, t] or truncated[env_index, t], "no episode ends at the time limit"
+            if terminated[env_index, t] or truncated[env_index, t]:
+                length = 0
+    assert truncated.any(), "no truncation in a rollout longer than the time limit"
+
+
+def test_step_returns_six_values_with_both_final_keys(case):
+    _, _, _, trace = case
+    assert trace["arity"]["step"] == 6
+    # final_obs == final_observation is checked with the auto-reset semantics above.
+    assert trace["final_observation"].shape == trace["final_obs"].shape
+
+
+# -------------------------------------------------------------------- identity
+def test_env_is_hashable_and_a_static_jit_argument(case):
+    _, env, _, _ = case
+    assert env == env and hash(env) == hash(env)  # noqa: PLR0124  (reflexivity is the point)
+    traces = []
+
+    def uses_env(environment, x):
+        # Reads static configuration only, so the test compiles no environment code.
+        traces.append(1)
+        return x * environment.num_actions
+
+    jitted = jax.jit(uses_env, static_argnums=0)
+    assert int(jitted(env, 2)) == 2 * env.num_actions
+    assert int(jitted(copy.deepcopy(env), 3)) == 3 * env.num_actions
+    assert int(jitted(pickle.loads(pickle.dumps(env)), 4)) == 4 * env.num_actions
+    assert len(traces) == 1, "an equal environment must hit the same jit cache entry"
+
+
+@pytest.mark.parametrize("clone", [copy.deepcopy, lambda env: pickle.loads(pickle.dumps(env))],
+                         ids=["deepcopy", "pickle"])
+def test_env_survives_deepcopy_and_pickle(case, clone):
+    _, env, _, _ = case
+    other = clone(env)
+    assert other is not env
+    assert other == env and hash(other) == hash(env)
+    assert tree_equal(other.default_params, env.default_params)
+    assert repr(other.observation_space()) == repr(env.observation_space())
+    both = jax.jit(lambda key: (env.reset(key), other.reset(key)))(jax.random.key(8))
+    assert tree_equal(both[0], both[1])
+
+
+# ---------------------------------------------------------------- legacy view
+def test_legacy_view_returns_five_values(case):
+    _, _, _, trace = case
+    assert trace["arity"]["legacy"] == 5
+    assert trace["legacy_done"].dtype == np.bool_
+    np.testing.assert_array_equal(trace["legacy_done"], trace["terminated"] | trace["truncated"])
+    np.testing.assert_array_equal(trace["legacy_terminated"], trace["terminated"])
+    np.testing.assert_array_equal(trace["legacy_truncated"], trace["truncated"])
+    np.testing.assert_array_equal(trace["legacy_obs"], trace["obs"])
+    np.testing.assert_array_equal(trace["legacy_reward"], trace["reward"])
+    assert trace["legacy_done"].any() and not trace["legacy_done"].all()
+
+
+def test_legacy_view_is_hashable_and_survives_copies(case):
+    _, env, params, _ = case
+    legacy = wrl_jax.LegacyStepAPI(env)
+    for other in (copy.deepcopy(legacy), pickle.loads(pickle.dumps(legacy))):
+        assert other == legacy and hash(other) == hash(legacy)
+        assert other.env == env
+    assert legacy.name == env.name and legacy.num_actions == env.num_actions
+    assert tree_equal(legacy.default_params, params)
+    jitted = jax.jit(lambda view, x: x + view.num_actions, static_argnums=0)
+    assert int(jitted(legacy, 1)) == int(jitted(copy.deepcopy(legacy), 1)) == 1 + env.num_actions
+    assert legacy != env and wrl_jax.LegacyStepAPI(copy.deepcopy(env)) == legacy
+
+
+def test_gymnax_legacy_wrapper_fails_under_deepcopy():
+    """Why :class:`wrl_jax.LegacyStepAPI` exists: gymnax 1.0.1's own 5-value wrapper cannot be deep-copied.
+
+    Its ``__getattr__`` forwards every missing name to ``self._env``; a copy
+    under construction has no ``_env`` yet, so the lookup recurses. rejax
+    deep-copies its config (env included) in ``Algorithm.create``.
+    """
+    wrapper_class = getattr(getattr(gymnax.wrappers, "compat", None), "LegacyStepAPIWrapper", None)
+    if wrapper_class is None:
+        pytest.skip("this gymnax has no LegacyStepAPIWrapper")
+    env, _ = wrl_jax.make(NAMES[0])
+    with pytest.raises(RecursionError):
+        copy.deepcopy(wrapper_class(env))
+    copy.deepcopy(wrl_jax.LegacyStepAPI(env))  # ours does not raise

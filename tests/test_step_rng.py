@@ -1,0 +1,74 @@
+"""The warehouse step's unrolled reset word is ``jax.random.bits`` bit for bit (issue 12's throughput work).
+
+:func:`wrl_jax.envs.warehouse.env.random_word` replaces JAX's looped CPU
+lowering of threefry by the same arithmetic written out, so it must give the
+very same words for every key, and fall back to ``jax.random.bits`` for keys
+it does not handle; the step built on it must equal the step built on
+``jax.random.bits``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import wrl_jax
+from wrl_jax.envs.warehouse.env import item_from_word, random_word, threefry_word
+
+
+def bits(key):
+    return jax.random.bits(key, (), jnp.uint32)
+
+
+@pytest.mark.parametrize("impl", ["threefry2x32", "philox4x32"])
+def test_random_word_equals_jax_random_bits(impl):
+    keys = jax.random.split(jax.random.key(123, impl=impl), 20_000)
+    ours = np.asarray(jax.jit(jax.vmap(random_word))(keys))
+    np.testing.assert_array_equal(ours, np.asarray(jax.jit(jax.vmap(bits))(keys)))
+    assert len(np.unique(ours)) > 19_900  # not a constant or a short cycle
+    # Unbatched and outside jit too.
+    np.testing.assert_array_equal(random_word(keys[7]), bits(keys[7]))
+
+
+def test_legacy_raw_keys_fall_back():
+    raw = jax.random.PRNGKey(5)  # uint32[2], not a typed key
+    assert random_word(raw) == bits(raw)
+
+
+def test_threefry_word_is_the_unrolled_block():
+    key = jax.random.key(9)
+    np.testing.assert_array_equal(threefry_word(jax.random.key_data(key)), bits(key))
+    # A different key gives a different word (the arithmetic reads both key words).
+    data = np.asarray(jax.random.key_data(key)).copy()
+    data[1] ^= 1
+    assert threefry_word(jnp.asarray(data)) != threefry_word(jax.random.key_data(key))
+
+
+def test_step_equals_the_step_on_jax_random_bits():
+    env, params = wrl_jax.make("Warehouse-8x8-v0")
+    batch, horizon = 64, 200  # longer than the 150-step limit, so every environment resets
+
+    def looped_step(key, state, action, params):
+        return env.step_to_item(state, action, item_from_word(bits(key), params.num_items), params)
+
+    def rollout(step, key):
+        vstep = jax.vmap(step, in_axes=(0, 0, 0, None))
+        _, state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(key, batch), params)
+
+        def body(state, key):
+            action_key, step_key = jax.random.split(key)
+            actions = jax.random.randint(action_key, (batch,), 0, 4)
+            out = vstep(jax.random.split(step_key, batch), state, actions, params)
+            return out[1], out[:5] + (out[5]["final_obs"],)
+
+        return jax.lax.scan(body, state, jax.random.split(key, horizon))
+
+    key = jax.random.key(3)
+    ours = jax.jit(lambda k: rollout(env.step, k))(key)
+    looped = jax.jit(lambda k: rollout(looped_step, k))(key)
+    for a, b in zip(jax.tree.leaves(ours), jax.tree.leaves(looped)):
+        np.testing.assert_array_equal(a, b)
+    terminated, truncated = ours[1][3], ours[1][4]
+    assert bool((terminated | truncated).any())
