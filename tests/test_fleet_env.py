@@ -383,3 +383,79 @@ def test_render_frame_ascii_and_gif(tmp_path):
     assert (tmp_path / "shift.gif").stat().st_size > 0 and path.endswith("shift.gif")
     with pytest.raises(ValueError, match="num_steps"):
         render.record_shift(env, params, policy, jax.random.key(0), num_steps=5)
+
+
+# ----------------------------------------------------------------- the fast step against the generic one
+def test_fast_draws_are_jax_random_bits():
+    """The unrolled threefry of env.py gives ``jax.random.split`` and ``jax.random.bits`` bit for bit."""
+    keys = jax.random.split(jax.random.key(3), 64)
+
+    def both(key):
+        split = jax.random.split(key)
+        fast = (fleet_env.split_key(key, 0), fleet_env.split_key(key, 1))
+        words = (jax.random.bits(key, (16,), jnp.uint32), fleet_env.random_words(key, 16))
+        return [jax.random.key_data(k) for k in (split[0], split[1], *fast)], words
+
+    (split0, split1, fast0, fast1), (bits, fast_bits) = jax.device_get(jax.jit(jax.vmap(both))(keys))
+    np.testing.assert_array_equal(split0, fast0)
+    np.testing.assert_array_equal(split1, fast1)
+    np.testing.assert_array_equal(bits, fast_bits)
+
+
+@pytest.mark.parametrize("typed_keys", [True, False], ids=["typed", "legacy"])
+def test_vmapped_step_is_the_generic_step_bit_for_bit(typed_keys):
+    """``Fleet.step`` (unrolled draws, lazy auto-reset, compact observation select) against the base
+    class's ``Environment.step`` (``jax.random.split``, ``reset_env``, ``jnp.where`` on observations),
+    vmapped over fleets whose shift clocks differ, so that some truncate while others go on."""
+    from wrl_jax.core.environment import Environment
+
+    env, params = make_fleet(maps.FLEET_12X12, 8, max_steps=12)
+    num_envs, num_steps = 24, 30
+    make_key = jax.random.key if typed_keys else jax.random.PRNGKey
+    _, state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(make_key(0), num_envs), params)
+    state = state.replace(time=jnp.arange(num_envs, dtype=jnp.int32) % 12)
+    actions = jax.random.randint(make_key(1), (num_steps, num_envs, 8), 0, 5, dtype=jnp.int32)
+    keys = jax.random.split(make_key(2), num_steps * num_envs).reshape(num_steps, num_envs, -1)
+    keys = keys[..., 0] if typed_keys else keys
+
+    def rollout(step):
+        def body(state, xs):
+            obs, state, reward, terminated, truncated, info = jax.vmap(step, in_axes=(0, 0, 0, None))(
+                xs[0], state, xs[1], params)
+            return state, (obs, reward, terminated, truncated, info)
+
+        return jax.lax.scan(body, state, (keys, actions))
+
+    fast = jax.device_get(jax.jit(lambda: rollout(env.step))())
+    generic = jax.device_get(jax.jit(lambda: rollout(functools.partial(Environment.step, env)))())
+    assert int(np.asarray(fast[1][3]).sum()) >= num_envs  # truncations happened, at different steps
+    for a, b in zip(jax.tree.leaves(fast), jax.tree.leaves(generic)):
+        a, b = np.asarray(a), np.asarray(b)
+        assert a.dtype == b.dtype and np.array_equal(a.view(np.uint32) if a.dtype == np.float32 else a,
+                                                     b.view(np.uint32) if b.dtype == np.float32 else b)
+
+
+@pytest.mark.parametrize("num_robots", [3, 8, 20, 31])
+def test_mask_rounds_equal_the_table_rounds(num_robots):
+    """The unrolled int32-mask rounds give the ``while_loop`` table rounds' result on crowded random fleets."""
+    rng = np.random.default_rng(num_robots)
+    side = int(np.ceil(np.sqrt(num_robots * 1.3)))
+    pos, proposal = [], []
+    for _ in range(200):
+        cells = rng.choice(side * side, num_robots, replace=False)
+        here = np.stack([cells // side, cells % side], axis=1)
+        pos.append(here)
+        proposal.append(here + MOVES_WITH_WAIT[rng.integers(0, 5, num_robots)])
+    pos, proposal = jnp.asarray(np.array(pos), jnp.int32), jnp.asarray(np.array(proposal), jnp.int32)
+
+    def both(pos, proposal):
+        same_q, onto = fleet_env._same(proposal, proposal), fleet_env._same(proposal, pos)
+        swap = onto & fleet_env._same(pos, proposal)
+        movers = jnp.any(proposal != pos, axis=1)
+        lower = np.arange(num_robots)[None, :] < np.arange(num_robots)[:, None]
+        return (fleet_env._mover_rounds(movers, same_q, onto, swap),
+                fleet_env._mover_rounds_tables(movers, same_q & lower, onto, swap))
+
+    masks, tables = jax.device_get(jax.jit(jax.vmap(both))(pos, proposal))
+    np.testing.assert_array_equal(masks, tables)
+    assert (masks != np.any(np.asarray(proposal) != np.asarray(pos), axis=2)).any()  # some robots were blocked

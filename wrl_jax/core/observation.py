@@ -93,7 +93,7 @@ MAX_BIT_WINDOW = 31
 
 
 def bit_windows_supported(view_radius: int) -> bool:
-    """True when a ``(2V+1)^2`` window fits one int32 mask (``V <= 2``): :func:`robot_observations_from_bits` applies."""
+    """True when a ``(2V+1)^2`` window fits one int32 mask (``V <= 2``): the mask functions below apply."""
     return window_size(view_radius) ** 2 <= MAX_BIT_WINDOW
 
 
@@ -125,22 +125,23 @@ def offset_masks(delta: jax.Array, view_radius: int) -> jax.Array:
     return jnp.where(inside, jnp.left_shift(jnp.int32(1), index), 0)
 
 
-def robot_observations_from_bits(
+def robot_observation_parts(
     shelf_masks: jax.Array,
     pos: jax.Array,
     target: jax.Array,
     carrying: jax.Array,
     view_radius: int,
     size: int,
-) -> jax.Array:
-    """:func:`robot_observations`, bit for bit, from each robot's shelf mask (``window_masks`` at its cell).
+) -> tuple[jax.Array, jax.Array]:
+    """A compact form of every robot's observation: ``(scalars (K, 5) float32, masks (K, 3) int32)``.
 
-    Why: the gathers of :func:`egocentric_windows` (a ``(2V+1)^2`` dynamic slice per robot and
-    channel, plus a scatter of the occupancy grid) dominate a fleet step under ``vmap``. Here each
-    channel is one int32 mask per robot: the shelf mask is read from :func:`window_masks`, the robot
-    mask ORs ``1 << w`` over the other robots whose offset lands in the window (``K x K`` work, tiny
-    for a fleet), the target mask is one offset; the float32 window is then the masks' bits, in one
-    elementwise expansion that XLA fuses with the concatenate. Needs :func:`bit_windows_supported`.
+    Why: a fleet step needs two observations (the reached one, ``final_obs``, and the auto-reset's)
+    and selects between them; selecting 32 bytes per robot and expanding once writes the float32
+    observation (320 bytes per robot at ``V = 2``) only where it is an output. The masks hold one
+    channel each (bit ``w`` = window cell ``w``): the shelf mask is read from :func:`window_masks`,
+    the robot mask ORs ``1 << w`` over the other robots whose offset lands in the window (``K x K``
+    work, tiny for a fleet), the target mask is one offset. :func:`expand_observations` makes the
+    observation of :func:`robot_observations` from them, bit for bit. Needs :func:`bit_windows_supported`.
 
     Args:
         shelf_masks: ``(K,)`` int32, :func:`window_masks` of the blocked grid read at each robot's cell.
@@ -148,7 +149,6 @@ def robot_observations_from_bits(
         view_radius: ``V`` (static); size: ``N`` of the ``/ (N - 1)`` scaling (static).
     """
     radius = int(view_radius)
-    side = window_size(radius)
     if not bit_windows_supported(radius):
         raise ValueError(f"view_radius {radius} does not fit a {MAX_BIT_WINDOW}-bit window mask")
     num_robots = pos.shape[0]
@@ -158,6 +158,40 @@ def robot_observations_from_bits(
     seen = jnp.where(others, offset_masks(pos[None, :, :] - pos[:, None, :], radius), 0)  # [i, j]: j seen by i
     robot_masks = jax.lax.reduce(seen, np.int32(0), jax.lax.bitwise_or, (1,))
     target_masks = offset_masks(target - pos, radius)
-    masks = jnp.stack([shelf_masks, robot_masks, target_masks], axis=1)  # (K, 3)
-    bits = (masks[:, :, None] >> jnp.arange(side * side, dtype=jnp.int32)) & 1
-    return jnp.concatenate([scalars, bits.astype(jnp.float32).reshape(num_robots, -1)], axis=1)
+    return scalars, jnp.stack([shelf_masks, robot_masks, target_masks], axis=1)
+
+
+def expand_observations(scalars: jax.Array, masks: jax.Array, view_radius: int) -> jax.Array:
+    """``(..., 5 + 3 (2V+1)^2)`` float32 observations from :func:`robot_observation_parts`' compact form.
+
+    One elementwise expression over the output's columns (scalar columns copy, window columns
+    read one bit of their channel's mask), so XLA fuses it into whatever consumes the
+    observation instead of materializing the windows first.
+    """
+    cells = window_size(view_radius) ** 2
+    column = np.arange(5 + 3 * cells)
+    channel, bit = np.divmod(np.maximum(column - 5, 0), cells)
+    mask = jnp.where(channel == 0, masks[..., 0:1], jnp.where(channel == 1, masks[..., 1:2], masks[..., 2:3]))
+    window = ((mask >> bit.astype(np.int32)) & 1).astype(jnp.float32)
+    scalar = scalars[..., 4:5]
+    for index in range(3, -1, -1):
+        scalar = jnp.where(column == index, scalars[..., index:index + 1], scalar)
+    return jnp.where(column < 5, scalar, window)
+
+
+def robot_observations_from_bits(
+    shelf_masks: jax.Array,
+    pos: jax.Array,
+    target: jax.Array,
+    carrying: jax.Array,
+    view_radius: int,
+    size: int,
+) -> jax.Array:
+    """:func:`robot_observations`, bit for bit, from each robot's shelf mask (:func:`window_masks` at its cell).
+
+    Why: the gathers of :func:`egocentric_windows` (a ``(2V+1)^2`` dynamic slice per robot and
+    channel, plus a scatter of the occupancy grid) dominated a fleet step under ``vmap``; here each
+    channel is one int32 mask per robot (:func:`robot_observation_parts`), expanded elementwise.
+    """
+    scalars, masks = robot_observation_parts(shelf_masks, pos, target, carrying, view_radius, size)
+    return expand_observations(scalars, masks, view_radius)

@@ -9,15 +9,18 @@ The transition is split in two so the NumPy reference can replay it bit for bit:
 - :func:`fleet_transition` and :func:`fleet_reset` are deterministic in the
   drawn tasks.
 
-``Fleet.step`` is the base class's: ``key_step, key_reset = split(key)``,
-the transition draws from ``key_step``, the auto-reset (on truncation) from
-``key_reset`` (see :func:`step_keys`).
+``Fleet.step`` gives the base class's results bit for bit (``key_step, key_reset =
+split(key)``, the transition draws from ``key_step``, the auto-reset on truncation from
+``key_reset``; see :func:`step_keys`), computed more cheaply: threefry written out
+(:func:`threefry2x32`), the auto-reset only on steps where some env truncates
+(:func:`only_where`), observations from int32 bit masks (:func:`observation_parts`).
 
-The conflict rule (FLEET_SPEC.md step 3) works on all robots at once: a
-``(K, K)`` table of "robot j's cell this round is robot i's proposal" and one
-of "i and j would swap", reduced over ``j``; rounds run in a
-``lax.while_loop`` until no mover is blocked (at most ``K`` rounds, since each
-round that continues removes at least one mover).
+The conflict rule (FLEET_SPEC.md step 3) works on all robots at once: ``(K, K)``
+relations "robot i's proposal is robot j's proposal / cell" and "i and j would
+swap", fixed for the whole step; only the mover set changes between rounds. Each
+relation row becomes an int32 mask over ``j`` and the rounds (exactly ``K``, which
+reach the fixed point) are unrolled (:func:`_mover_rounds`); fleets of more than 31
+robots keep boolean tables in a ``lax.while_loop``.
 """
 
 from __future__ import annotations
@@ -30,9 +33,16 @@ import numpy as np
 from gymnax.environments import spaces
 
 from wrl_jax.core.environment import Environment
-from wrl_jax.core.grid import MOVES_WITH_WAIT
-from wrl_jax.core.observation import (bit_windows_supported, coordinate_table, observation_size,
-                                      robot_observations, robot_observations_from_bits, window_masks)
+from wrl_jax.core.observation import (
+    bit_windows_supported,
+    coordinate_table,
+    expand_observations,
+    observation_size,
+    robot_observation_parts,
+    robot_observations,
+    window_masks,
+)
+from wrl_jax.core.random import random_words, split_key, threefry2x32, threefry_key_data  # noqa: F401 (re-exported)
 from wrl_jax.envs.fleet.types import FleetParams, FleetState, FleetTasks
 
 NUM_ACTIONS = 5
@@ -42,52 +52,6 @@ WAIT = 4
 
 FLAGS = ("shelf_hit", "wall_bump", "robot_block", "picked_up", "delivered", "waited")
 """Per-robot bool ``(K,)`` entries of a transition's ``info`` (``waited``: action 4, for the metrics)."""
-
-
-# ----------------------------------------------------------------- random draws
-_THREEFRY_ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
-
-
-def threefry2x32(k0: jax.Array, k1: jax.Array, c0: jax.Array, c1: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Threefry-2x32 (20 rounds, 5 key injections) of counters ``(c0, c1)`` under key ``(k0, k1)``, uint32.
-
-    The hash of ``jax.random``, written out. Why: JAX's CPU lowering of threefry is a 5-iteration
-    ``while`` loop, so under ``vmap`` each of the step's three draws (key split, task draw, reset
-    draw) ran a batch-sized loop outside the step's fusions, with its own copies: the largest cost
-    of a fleet step. Unrolled, it is elementwise integer arithmetic that XLA fuses. The tests check
-    its bits against ``jax.random.split`` and ``jax.random.bits``.
-    """
-    injected = (k0, k1, k0 ^ k1 ^ np.uint32(0x1BD11BDA))
-    x0, x1 = c0 + k0, c1 + k1
-    for block in range(5):
-        for rotation in _THREEFRY_ROTATIONS[block % 2]:
-            x0 = x0 + x1
-            x1 = (x1 << np.uint32(rotation)) | (x1 >> np.uint32(32 - rotation))
-            x1 = x0 ^ x1
-        x0 = x0 + injected[(block + 1) % 3]
-        x1 = x1 + injected[(block + 2) % 3] + np.uint32(block + 1)
-    return x0, x1
-
-
-def _threefry_key_data(key: jax.Array) -> jax.Array | None:
-    """``(2,)`` uint32 data of a typed threefry key under JAX's default partitionable mode, else ``None``.
-
-    Only there are :func:`threefry2x32` of counters ``(0, n)`` the bits ``jax.random`` draws; other
-    keys (legacy ``uint32[2]``, other implementations, the non-partitionable mode) use ``jax.random``.
-    """
-    if (jnp.issubdtype(key.dtype, jax.dtypes.prng_key) and str(jax.random.key_impl(key)) == "threefry2x32"
-            and jax.config.jax_threefry_partitionable):
-        return jax.random.key_data(key)
-    return None
-
-
-def random_words(key: jax.Array, count: int) -> jax.Array:
-    """``jax.random.bits(key, (count,), jnp.uint32)``, bit for bit; unrolled for threefry keys."""
-    data = _threefry_key_data(key)
-    if data is None:
-        return jax.random.bits(key, (count,), jnp.uint32)
-    x0, x1 = threefry2x32(data[0], data[1], np.uint32(0), jnp.arange(count, dtype=jnp.uint32))
-    return x0 ^ x1
 
 
 def draw_tasks(key: jax.Array, params: FleetParams, num_robots: int) -> FleetTasks:
@@ -108,13 +72,26 @@ def draw_tasks(key: jax.Array, params: FleetParams, num_robots: int) -> FleetTas
 
 def step_keys(key: jax.Array) -> tuple[jax.Array, jax.Array]:
     """``(transition key, reset key)`` of ``Fleet.step(key, ...)``: ``jax.random.split(key)``, bit for bit."""
-    data = _threefry_key_data(key)
-    if data is None:
-        key_step, key_reset = jax.random.split(key)
-        return key_step, key_reset
-    x0, x1 = threefry2x32(data[0], data[1], np.uint32(0), jnp.arange(2, dtype=jnp.uint32))
-    keys = jax.random.wrap_key_data(jnp.stack([x0, x1], axis=-1), impl="threefry2x32")
-    return keys[0], keys[1]
+    return split_key(key, 0), split_key(key, 1)
+
+
+
+def only_where(pred: jax.Array, compute, operand: jax.Array, otherwise):
+    """``compute(operand)`` where ``pred``, else ``otherwise`` (same pytree); computed only when needed.
+
+    A ``lax.while_loop`` that runs at most once. Why not ``jnp.where`` or ``lax.cond``: under
+    ``vmap`` both evaluate ``compute`` for every env on every step. A batched while runs its body
+    only while some env of the batch still needs it (then selects per env), so the auto-reset of
+    fleets that share a shift clock (the usual batch: all start together, all truncate together)
+    costs one batch-wide test on the steps between truncations. ``operand`` (an unsigned integer
+    array, e.g. key data) rides in the loop carry and is changed by the body, so XLA cannot hoist
+    ``compute`` out of the loop as loop-invariant (which would run it on every step again).
+    """
+    def body(carry):
+        _, data, _ = carry
+        return jnp.zeros((), dtype=bool), data + np.asarray(1, dtype=data.dtype), compute(data)
+
+    return jax.lax.while_loop(lambda carry: carry[0], body, (jnp.asarray(pred), operand, otherwise))[2]
 
 
 # ----------------------------------------------------------------- deterministic core
@@ -294,16 +271,25 @@ def fleet_reset(tasks: FleetTasks, params: FleetParams) -> FleetState:
 def fleet_observation(state: FleetState, params: FleetParams, view_radius: int) -> jax.Array:
     """``(K, 5 + 3 (2V+1)^2)`` float32 observations (FLEET_SPEC.md), through :mod:`wrl_jax.core.observation`.
 
-    For ``V <= 2`` from bit masks (:func:`wrl_jax.core.observation.robot_observations_from_bits`,
-    the same bits as :func:`~wrl_jax.core.observation.robot_observations`, several times cheaper
-    under ``vmap``); the shelf masks come from a table of the layout, one gather per robot.
+    For ``V <= 2`` from bit masks (:func:`observation_parts`), the same bits as
+    :func:`~wrl_jax.core.observation.robot_observations`, several times cheaper under ``vmap``.
     """
-    target = _target_cells(params)[_target_index(state, params)]
     if not bit_windows_supported(view_radius):
+        target = _target_cells(params)[_target_index(state, params)]
         return robot_observations(params.shelves, state.pos, target, state.carrying, view_radius)
+    return expand_observations(*observation_parts(state, params, view_radius), view_radius)
+
+
+def observation_parts(state: FleetState, params: FleetParams, view_radius: int) -> tuple[jax.Array, jax.Array]:
+    """The observations' compact form ``(scalars (K, 5), masks (K, 3))`` (``V <= 2``; see ``robot_observation_parts``).
+
+    The shelf masks come from a table of the layout (:func:`~wrl_jax.core.observation.window_masks`),
+    one gather per robot; with params shared by a batch the table is built once per step.
+    """
     size = params.shelves.shape[0]
+    target = _target_cells(params)[_target_index(state, params)]
     masks = window_masks(params.shelves, view_radius).reshape(-1)[state.pos[:, 0] * size + state.pos[:, 1]]
-    return robot_observations_from_bits(masks, state.pos, target, state.carrying, view_radius, size)
+    return robot_observation_parts(masks, state.pos, target, state.carrying, view_radius, size)
 
 
 def global_state(state: FleetState, params: FleetParams) -> jax.Array:
@@ -355,6 +341,8 @@ class Fleet(Environment[FleetState, FleetParams]):
     holds the per-robot flags of :data:`FLAGS`.
     """
 
+    family = "fleet"
+
     def __init__(self, params: FleetParams, view_radius: int = 2, name: str = "Fleet"):
         self.size = int(params.shelves.shape[0])
         self.num_robots = int(params.starts.shape[0])
@@ -395,19 +383,35 @@ class Fleet(Environment[FleetState, FleetParams]):
     def step(self, key: jax.Array, state: FleetState, action: Any, params: FleetParams | None = None):
         """The base class's ``step`` (same keys, draws, outputs and bits), with a cheaper auto-reset.
 
-        The reset observation is built from the fresh state directly: its positions are the
-        layout's starts, so under ``vmap`` with shared params its shelf and robot channels are
-        computed once for the batch, and only the task-dependent parts per env.
+        The auto-reset (reset key, task draw, fresh observation) runs only on steps where some env
+        truncates (:func:`only_where`), and the select of reset against reached observation is
+        done on their compact form (:func:`observation_parts`), expanded once per output.
         """
         params = self.default_params if params is None else params
         self.check_action(action)
-        key_step, key_reset = step_keys(key)
-        tasks = draw_tasks(key_step, params, self.num_robots)
+        tasks = draw_tasks(split_key(key, 0), params, self.num_robots)
         reached, reward, truncated, flags = fleet_transition(state, action, tasks, params)
-        final_obs = fleet_observation(reached, params, self.view_radius)
-        fresh = fleet_reset(draw_tasks(key_reset, params, self.num_robots), params)
-        next_state = jax.tree.map(lambda new, old: jnp.where(truncated, new, old), fresh, reached)
-        obs = jnp.where(truncated, fleet_observation(fresh, params, self.view_radius), final_obs)
+        compact = bit_windows_supported(self.view_radius)
+        observe = observation_parts if compact else fleet_observation
+        final_parts = observe(reached, params, self.view_radius)
+        if compact:  # materialize the 32 bytes a robot: else XLA recomputes masks for each of the 80 columns
+            final_parts = jax.lax.optimization_barrier(final_parts)
+
+        typed = jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
+        impl = jax.random.key_impl(key) if typed else None
+
+        def reset(data):
+            key_reset = split_key(jax.random.wrap_key_data(data, impl=impl) if typed else data, 1)
+            fresh = fleet_reset(draw_tasks(key_reset, params, self.num_robots), params)
+            return fresh, observe(fresh, params, self.view_radius)
+
+        data = jax.random.key_data(key) if typed else key
+        next_state, parts = only_where(truncated, reset, data, (reached, final_parts))
+        if compact:  # the compact form (32 bytes a robot) was selected; expand each output once
+            final_obs = expand_observations(*final_parts, self.view_radius)
+            obs = expand_observations(*parts, self.view_radius)
+        else:
+            final_obs, obs = final_parts, parts
         info = {**flags, "final_obs": final_obs, "final_observation": final_obs}
         return obs, next_state, reward, jnp.zeros((), dtype=bool), truncated, info
 

@@ -33,6 +33,7 @@ import numpy as np
 from gymnax.environments import spaces
 
 from wrl_jax.core.environment import Environment
+from wrl_jax.core.random import random_word, threefry2x32  # noqa: F401 (random_word re-exported)
 from wrl_jax.envs.warehouse.layout import MOVES, Layout
 from wrl_jax.envs.warehouse.types import REWARD_DEFAULTS, EnvParams, EnvState
 
@@ -271,46 +272,9 @@ def draw_item(key: jax.Array, params: EnvParams) -> jax.Array:
     return item_from_word(random_word(key), params.num_items)
 
 
-_THREEFRY_ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
-
-
-def random_word(key: jax.Array) -> jax.Array:
-    """``jax.random.bits(key, (), jnp.uint32)``, bit for bit; unrolled for threefry keys (:func:`threefry_word`).
-
-    The fast path needs a typed threefry2x32 key (``jax.random.key``) and
-    ``jax_threefry_partitionable`` (JAX's default), whose one-word draw is
-    ``threefry2x32(key, counter 0)`` with its two output words xor-ed. Legacy
-    ``uint32[2]`` keys, other implementations and the non-partitionable mode
-    fall back to ``jax.random.bits``.
-    """
-    if (jnp.issubdtype(key.dtype, jax.dtypes.prng_key) and str(jax.random.key_impl(key)) == "threefry2x32"
-            and jax.config.jax_threefry_partitionable):
-        return threefry_word(jax.random.key_data(key))
-    return jax.random.bits(key, (), jnp.uint32)
-
-
 def threefry_word(key_data: jax.Array) -> jax.Array:
-    """The xor of Threefry-2x32's two output words for counter ``(0, 0)``: ``key_data[..., :2]`` uint32.
-
-    Why not ``jax.random.bits``: on CPU, JAX lowers threefry to a 5-iteration
-    ``while`` loop (smaller programs), so under ``vmap`` every step of every
-    environment runs a batch-sized loop with its own copies, outside the
-    step's fusions. Written out (20 rounds, 5 key injections) it is plain
-    elementwise integer arithmetic that XLA fuses into the step: x1.2 on a
-    gymnax user's loop at 4,096 environments (docs/throughput.md,
-    ``bench/env_throughput.py --gymnax``). The counter words are 0, so the
-    first injection is the key itself.
-    """
-    k0, k1 = key_data[..., 0], key_data[..., 1]
-    injected = (k0, k1, k0 ^ k1 ^ np.uint32(0x1BD11BDA))
-    x0, x1 = k0, k1
-    for block in range(5):
-        for rotation in _THREEFRY_ROTATIONS[block % 2]:
-            x0 = x0 + x1
-            x1 = (x1 << np.uint32(rotation)) | (x1 >> np.uint32(32 - rotation))
-            x1 = x0 ^ x1
-        x0 = x0 + injected[(block + 1) % 3]
-        x1 = x1 + injected[(block + 2) % 3] + np.uint32(block + 1)
+    """The xor of Threefry-2x32's two output words for counter ``(0, 0)`` under ``key_data[..., :2]``."""
+    x0, x1 = threefry2x32(key_data[..., 0], key_data[..., 1], np.uint32(0), np.uint32(0))
     return x0 ^ x1
 
 

@@ -1,0 +1,81 @@
+"""Random words and key splits with ``jax.random``'s exact bits, computed without its CPU loop.
+
+JAX lowers threefry on CPU as a 5-iteration ``while`` loop (a smaller
+program). Under ``vmap`` every draw of an environment step then runs a
+batch-sized loop outside the step's fusions, with its own copies of the
+data: the largest single cost of a step (docs/throughput.md, docs/fleet.md).
+Written out (20 rounds, 5 key injections) threefry is plain elementwise
+integer arithmetic that XLA fuses into the step. For JAX's default keys
+(typed threefry2x32 keys in the default partitionable mode) these functions
+return exactly ``jax.random.bits`` / ``jax.random.split``; any other key
+falls back to ``jax.random`` itself. ``tests/test_step_rng.py`` and
+``tests/test_fleet_env.py`` check the bits.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+_THREEFRY_ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
+
+
+def threefry2x32(k0: jax.Array, k1: jax.Array, c0: jax.Array, c1: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Threefry-2x32 (20 rounds, 5 key injections) of counters ``(c0, c1)`` under key ``(k0, k1)``, uint32.
+
+    The hash of ``jax.random``, written out (see the module docstring for why).
+    """
+    injected = (k0, k1, k0 ^ k1 ^ np.uint32(0x1BD11BDA))
+    x0, x1 = c0 + k0, c1 + k1
+    for block in range(5):
+        for rotation in _THREEFRY_ROTATIONS[block % 2]:
+            x0 = x0 + x1
+            x1 = (x1 << np.uint32(rotation)) | (x1 >> np.uint32(32 - rotation))
+            x1 = x0 ^ x1
+        x0 = x0 + injected[(block + 1) % 3]
+        x1 = x1 + injected[(block + 2) % 3] + np.uint32(block + 1)
+    return x0, x1
+
+
+def threefry_key_data(key: jax.Array) -> jax.Array | None:
+    """``(2,)`` uint32 data of a typed threefry key under JAX's default partitionable mode, else ``None``.
+
+    Only there are :func:`threefry2x32` of counters ``(0, n)`` the bits ``jax.random`` draws; other
+    keys (legacy ``uint32[2]``, other implementations, the non-partitionable mode) use ``jax.random``.
+    """
+    if (jnp.issubdtype(key.dtype, jax.dtypes.prng_key) and str(jax.random.key_impl(key)) == "threefry2x32"
+            and jax.config.jax_threefry_partitionable):
+        return jax.random.key_data(key)
+    return None
+
+
+def random_words(key: jax.Array, count: int) -> jax.Array:
+    """``jax.random.bits(key, (count,), jnp.uint32)``, bit for bit; unrolled for threefry keys."""
+    data = threefry_key_data(key)
+    if data is None:
+        return jax.random.bits(key, (count,), jnp.uint32)
+    x0, x1 = threefry2x32(data[0], data[1], np.uint32(0), jnp.arange(count, dtype=jnp.uint32))
+    return x0 ^ x1
+
+
+
+def random_word(key: jax.Array) -> jax.Array:
+    """``jax.random.bits(key, (), jnp.uint32)``, bit for bit (one word: counter ``(0, 0)``)."""
+    data = threefry_key_data(key)
+    if data is None:
+        return jax.random.bits(key, (), jnp.uint32)
+    x0, x1 = threefry2x32(data[0], data[1], np.uint32(0), np.uint32(0))
+    return x0 ^ x1
+
+
+def split_key(key: jax.Array, index: int) -> jax.Array:
+    """``jax.random.split(key)[index]``, bit for bit: for threefry keys one hash of counter ``(0, index)``.
+
+    Why one half alone: the fleet's ``step`` needs the reset key only on the rare steps that truncate.
+    """
+    data = threefry_key_data(key)
+    if data is None:
+        return jax.random.split(key)[index]
+    x0, x1 = threefry2x32(data[0], data[1], np.uint32(0), np.uint32(index))
+    return jax.random.wrap_key_data(jnp.stack([x0, x1], axis=-1), impl="threefry2x32")
