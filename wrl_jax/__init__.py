@@ -6,6 +6,12 @@ are listed in :mod:`wrl_jax.envs`. Every environment is a gymnax 1.0
 ``Environment`` (:mod:`wrl_jax.core.environment`).
 """
 
+# A multi-host run initializes JAX's distributed runtime before anything creates the backend
+# (importing gymnax does): see wrl_jax/_distributed.py.
+from wrl_jax import _distributed
+
+_distributed.initialize_if_requested()
+
 # Registration of every built-in name, with wrl_jax and with gymnax: one explicit place.
 import wrl_jax.envs  # noqa: F401  (registers)
 from wrl_jax.core.environment import Environment

@@ -37,7 +37,6 @@ order of float additions: again equal to float32 rounding, not bit for bit.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from typing import Any
 
@@ -237,26 +236,20 @@ class ShardedTrainer(training.Trainer):
 def initialize_distributed(
     coordinator_address: str | None = None, num_processes: int | None = None, process_id: int | None = None
 ) -> None:
-    """``jax.distributed.initialize`` for a multi-host run, before anything else touches JAX.
+    """``jax.distributed.initialize`` for a multi-host run (a no-op when it already ran).
 
     Every process runs the same command with its own ``process_id`` (0 ..
     ``num_processes - 1``); process 0's host runs the coordinator at
     ``coordinator_address`` (``host:port``). Unset arguments are read from
     ``WRL_COORDINATOR``, ``WRL_NUM_PROCESSES`` and ``WRL_PROCESS_ID``, then left
-    to JAX's cluster auto-detection (SLURM, Open MPI, TPU pods...).
+    to JAX's cluster auto-detection (SLURM, Open MPI, TPU pods...). It must run
+    before anything touches JAX's backend, which importing gymnax already does:
+    the command lines therefore run it when ``wrl_jax`` is imported
+    (:mod:`wrl_jax._distributed`; ``--distributed`` or ``WRL_DISTRIBUTED=1``).
     """
-    coordinator_address = coordinator_address or os.environ.get("WRL_COORDINATOR")
-    if num_processes is None and "WRL_NUM_PROCESSES" in os.environ:
-        num_processes = int(os.environ["WRL_NUM_PROCESSES"])
-    if process_id is None and "WRL_PROCESS_ID" in os.environ:
-        process_id = int(os.environ["WRL_PROCESS_ID"])
-    if num_processes is not None and num_processes < 1:
-        raise ValueError(f"num_processes must be positive, got {num_processes}")
-    if process_id is not None and num_processes is not None and not 0 <= process_id < num_processes:
-        raise ValueError(f"process_id must be in 0..{num_processes - 1}, got {process_id}")
-    jax.distributed.initialize(
-        coordinator_address=coordinator_address, num_processes=num_processes, process_id=process_id
-    )
+    from wrl_jax import _distributed
+
+    _distributed.initialize(coordinator_address, num_processes, process_id)
 
 
 def describe(mesh: Mesh) -> str:
