@@ -21,6 +21,12 @@ swap", fixed for the whole step; only the mover set changes between rounds. Each
 relation row becomes an int32 mask over ``j`` and the rounds (exactly ``K``, which
 reach the fixed point) are unrolled (:func:`_mover_rounds`); fleets of more than 31
 robots keep boolean tables in a ``lax.while_loop``.
+
+Why one module of this length: the draws, the conflict rule, the transition,
+the observation hook and the environment class are FLEET_SPEC.md's whole MDP,
+which the NumPy reference is checked against bit for bit; they read best in
+one place (the random words are in :mod:`wrl_jax.core.random`, the windows in
+:mod:`wrl_jax.core.observation`).
 """
 
 from __future__ import annotations
