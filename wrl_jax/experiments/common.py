@@ -31,12 +31,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from wrl_jax.agents.base import Algorithm
 from wrl_jax.envs.warehouse import evaluation
+from wrl_jax.envs.warehouse.types import EnvParams
+from wrl_jax.stats import Interval, mean_ci, t_quantile  # noqa: F401 (re-exported for the experiments)
 from wrl_jax.training import driver as training
 from wrl_jax.training.variants import train_batch
-from wrl_jax.agents.base import Algorithm
-from wrl_jax.stats import Interval, mean_ci, t_quantile  # noqa: F401 (re-exported for the experiments)
-from wrl_jax.types import EnvParams
 
 # ------------------------------------------------------------- per-seed metrics
 METRICS = (

@@ -12,9 +12,9 @@ import dataclasses
 from typing import Any
 
 from wrl_jax.agents import dqn, ppo
-from wrl_jax.env import Warehouse
 from wrl_jax.core.registry import make
-from wrl_jax.types import EnvParams
+from wrl_jax.envs.warehouse.env import Warehouse
+from wrl_jax.envs.warehouse.types import EnvParams
 
 ENV_8 = "Warehouse-8x8-v0"
 ENV_12 = "Warehouse-12x12-v0"

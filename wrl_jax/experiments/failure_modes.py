@@ -34,12 +34,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from wrl_jax import evaluation
-from wrl_jax.env import Warehouse
+from wrl_jax.core.registry import make
+from wrl_jax.envs.warehouse import evaluation
+from wrl_jax.envs.warehouse.env import Warehouse
+from wrl_jax.envs.warehouse.types import EnvParams, EnvState
 from wrl_jax.experiments import common, forgetting
 from wrl_jax.experiments.configs import ENV_8, Setting, build
-from wrl_jax.core.registry import make
-from wrl_jax.types import EnvParams, EnvState
 
 BASE = Setting("dqn", "default", ENV_8)
 MODES = ("stage", "oscillation", "collision", "forgetting")

@@ -30,10 +30,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from wrl_jax import evaluation
+from wrl_jax.envs.warehouse import evaluation
+from wrl_jax.envs.warehouse.types import EnvParams
 from wrl_jax.experiments import common
 from wrl_jax.experiments.configs import ENV_8, Setting, build
-from wrl_jax.types import EnvParams
 
 VARIANTS = ("randomized (fix)", "segmented", "segmented, buffer cleared")
 

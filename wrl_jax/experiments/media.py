@@ -23,10 +23,10 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from wrl_jax.core.registry import make
+from wrl_jax.envs.warehouse.render import record_episode, save_gif
 from wrl_jax.experiments import common
 from wrl_jax.experiments.configs import ENV_8, ENV_12, Setting, build
-from wrl_jax.core.registry import make
-from wrl_jax.render import record_episode, save_gif
 
 OSCILLATION = "step -1, no shaping"
 

@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
+from wrl_jax.core.registry import make
+from wrl_jax.envs.warehouse.types import REWARD_DEFAULTS
 from wrl_jax.experiments import common
 from wrl_jax.experiments.configs import ENV_8, Setting, build
-from wrl_jax.core.registry import make
-from wrl_jax.types import REWARD_DEFAULTS
 
 TERMS = ("step_penalty", "obstacle_penalty", "shaping_coef", "pickup_reward", "delivery_reward")
 BASE = Setting("dqn", "default", ENV_8)

@@ -36,9 +36,9 @@ from gymnax.environments import spaces
 from wrl_jax.core.environment import Environment
 from wrl_jax.core.grid import MOVES
 from wrl_jax.core.observation import coordinate_table, observation_size, robot_observations
-from wrl_jax.env import check_action, item_from_word
 from wrl_jax.envs.procedural.generators import GeneratorConfig
 from wrl_jax.envs.procedural.pool import LayoutPool, refresh_pool
+from wrl_jax.envs.warehouse.env import check_action, item_from_word, spec_reward
 
 NUM_ACTIONS = 4
 MAX_POOL_SIZE = 2**16 - 1
@@ -217,20 +217,9 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         collision = on_floor & state.blocked[clipped[0], clipped[1]]
         next_pos = jnp.where(collision, pos, clipped)
 
-        target = jnp.where(state.carrying, state.goal, state.item_pos)
-        distance_before = jnp.sum(jnp.abs(pos - target))
-        distance_after = jnp.sum(jnp.abs(next_pos - target))
-        picked_up = ~state.carrying & jnp.all(next_pos == state.item_pos)
-        delivered = state.carrying & jnp.all(next_pos == state.goal)
-
-        zero = jnp.float32(0.0)
-        # Float32, terms added in SPEC.md's order, as in wrl_jax.env.
-        reward = jnp.where(delivered, zero, params.step_penalty)
-        reward = reward + jnp.where(collision, params.obstacle_penalty, zero)
-        reward = reward + jnp.where(wall_bump, params.wall_penalty, zero)
-        reward = reward + params.shaping_coef * (distance_before - distance_after).astype(jnp.float32)
-        reward = reward + jnp.where(picked_up, params.pickup_reward, zero)
-        reward = reward + jnp.where(delivered, params.delivery_reward, zero)
+        reward, picked_up, delivered = spec_reward(
+            params, pos, next_pos, state.carrying, state.item_pos, state.goal, collision, wall_bump
+        )
 
         time = state.time + 1
         terminated = delivered

@@ -23,7 +23,7 @@ import numpy as np
 from flax import struct
 
 from wrl_jax.core.grid import UNREACHABLE, distance_map
-from wrl_jax.layout import Layout
+from wrl_jax.envs.warehouse.layout import Layout
 
 
 @struct.dataclass

@@ -31,7 +31,7 @@ import numpy as np
 
 from wrl_jax.envs.procedural.generators import GeneratorConfig, cell_words, place
 from wrl_jax.envs.procedural.layout import PaddedLayout, from_arrays, from_layout
-from wrl_jax.layout import parse
+from wrl_jax.envs.warehouse.layout import parse
 
 BLOCKED_CHARS = frozenset("@OTW")
 FREE_CHARS = frozenset(".GS")

@@ -18,7 +18,7 @@ from wrl_jax.envs.procedural.env import ProceduralParams, ProceduralWarehouse, _
 from wrl_jax.envs.procedural.generators import GeneratorConfig
 from wrl_jax.envs.procedural.layout import PaddedLayout
 from wrl_jax.envs.procedural.pool import LayoutPool, generate_pool, pool_from_layouts
-from wrl_jax.types import REWARD_DEFAULTS
+from wrl_jax.envs.warehouse.types import REWARD_DEFAULTS
 
 DEFAULT_MAX_STEPS = 300
 """Episode length (the study's 12x12 uses 300; a 16x16 route is at most a few dozen steps longer)."""

@@ -208,20 +208,9 @@ class Warehouse(Environment[EnvState, EnvParams]):
         blocked = collision & ~params.collision_bug
         next_pos = jnp.where(blocked, pos, clipped)
 
-        target = jnp.where(state.carrying, params.goal, state.item_pos)
-        distance_before = jnp.sum(jnp.abs(pos - target))
-        distance_after = jnp.sum(jnp.abs(next_pos - target))
-        picked_up = ~state.carrying & jnp.all(next_pos == state.item_pos)
-        delivered = state.carrying & jnp.all(next_pos == params.goal)
-
-        zero = jnp.float32(0.0)
-        # Float32, terms added in SPEC.md's order: the NumPy reference adds them the same way.
-        reward = jnp.where(delivered, zero, params.step_penalty)
-        reward = reward + jnp.where(collision, params.obstacle_penalty, zero)
-        reward = reward + jnp.where(wall_bump, params.wall_penalty, zero)
-        reward = reward + params.shaping_coef * (distance_before - distance_after).astype(jnp.float32)
-        reward = reward + jnp.where(picked_up, params.pickup_reward, zero)
-        reward = reward + jnp.where(delivered, params.delivery_reward, zero)
+        reward, picked_up, delivered = spec_reward(
+            params, pos, next_pos, state.carrying, state.item_pos, params.goal, collision, wall_bump
+        )
 
         time = state.time + 1
         terminated = delivered
@@ -254,6 +243,37 @@ class Warehouse(Environment[EnvState, EnvParams]):
         if self.observe_carrying:
             parts.append(state.carrying.astype(jnp.float32)[None])
         return jnp.concatenate(parts)
+
+
+def spec_reward(
+    params: Any,
+    pos: jax.Array,
+    next_pos: jax.Array,
+    carrying: jax.Array,
+    item_pos: jax.Array,
+    goal: jax.Array,
+    collision: jax.Array,
+    wall_bump: jax.Array,
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """SPEC.md's pickup, delivery and float32 reward of one move: ``(reward, picked_up, delivered)``.
+
+    Shared by every single-robot family (the study's maps, the procedural
+    warehouses); ``params`` holds the six reward constants. Terms are added in
+    SPEC.md's order, as the NumPy reference adds them, so the bits agree.
+    """
+    target = jnp.where(carrying, goal, item_pos)
+    distance_before = jnp.sum(jnp.abs(pos - target))
+    distance_after = jnp.sum(jnp.abs(next_pos - target))
+    picked_up = ~carrying & jnp.all(next_pos == item_pos)
+    delivered = carrying & jnp.all(next_pos == goal)
+    zero = jnp.float32(0.0)
+    reward = jnp.where(delivered, zero, params.step_penalty)
+    reward = reward + jnp.where(collision, params.obstacle_penalty, zero)
+    reward = reward + jnp.where(wall_bump, params.wall_penalty, zero)
+    reward = reward + params.shaping_coef * (distance_before - distance_after).astype(jnp.float32)
+    reward = reward + jnp.where(picked_up, params.pickup_reward, zero)
+    reward = reward + jnp.where(delivered, params.delivery_reward, zero)
+    return reward, picked_up, delivered
 
 
 def draw_item(key: jax.Array, params: EnvParams) -> jax.Array:
