@@ -91,6 +91,13 @@ class Algorithm(abc.ABC, Generic[RunnerT]):
     def greedy_action(self, network_params: Any, obs: jax.Array) -> jax.Array:
         """The deterministic action for one observation (argmax Q, or the policy's mode)."""
 
+    has_stochastic_policy: ClassVar[bool] = False
+    """Whether :meth:`sample_action` is defined (a policy-gradient method's sampled policy)."""
+
+    def sample_action(self, network_params: Any, obs: jax.Array, key: jax.Array) -> jax.Array:
+        """An action drawn from the learned policy for ``obs`` (only where :attr:`has_stochastic_policy`)."""
+        raise NotImplementedError(f"{self.name} has no stochastic policy to sample")
+
     def flops_per_update(self) -> int | None:
         """Floating-point operations one update of one seed costs (network passes), if known.
 

@@ -413,6 +413,12 @@ class PPO(Algorithm[PPORunner]):
     def greedy_action(self, network_params: Any, obs: jax.Array) -> jax.Array:
         return jnp.argmax(self.forward(network_params, obs), axis=-1).astype(jnp.int32)
 
+    has_stochastic_policy = True
+
+    def sample_action(self, network_params: Any, obs: jax.Array, key: jax.Array) -> jax.Array:
+        """A draw from the categorical policy (``obs`` may carry batch axes)."""
+        return jax.random.categorical(key, self.forward(network_params, obs), axis=-1).astype(jnp.int32)
+
     def flops_per_update(self) -> int:
         cfg = self.config
         # The one-hot first layer is a 6-row gather-sum, about the cost of a dense layer on the 7 raw values.

@@ -26,6 +26,7 @@ def train(command: Command) -> dict[str, Any]:
 
     from wrl_jax import training
     from wrl_jax.training import checkpoint, metrics_io
+    from wrl_jax.training import evaluation as family_evaluation
     from wrl_jax.agents.networks import measured_matmul_peak_gflops
 
     wall_start = time.perf_counter()
@@ -77,6 +78,7 @@ def train(command: Command) -> dict[str, Any]:
     episodes = training.final_evaluation(trainer, result)
     family = trainer.evaluation
     eval_summary = family.summarize(episodes, trainer.seeds)
+    eval_summary.update(family_evaluation.run_final_report(family, trainer, result.runners, out))
     eval_seconds = time.perf_counter() - t0
     first = result.convergence.first_optimal_update(len(trainer.seeds))
     stable = result.convergence.stable_optimal_update(len(trainer.seeds))

@@ -41,6 +41,12 @@ class FamilyEvaluation:
             Markdown table printed after training and written to ``evaluation.md``.
         format_details: ``summary -> str``: a second, detailed table (may be empty).
         progress_metric: ``(seed_summary key, label)`` shown on the progress bar.
+        final_report: optional ``FinalContext -> dict``, run once after training
+            (and by ``python -m wrl_jax.evaluate``) on the host: evaluations too
+            large or too different to run inside the training loop (held-out
+            sets, planners beside the policy, the sampled policy, media). Its
+            result is merged into ``summary.json``'s ``eval`` before
+            ``format_report`` and ``format_details`` see the summary.
     """
 
     evaluate_policy: Callable[..., Any]
@@ -51,6 +57,7 @@ class FamilyEvaluation:
     format_report: Callable[..., str]
     format_details: Callable[[dict[str, Any]], str]
     progress_metric: tuple[str, str] = ("eval_success_rate", "eval success")
+    final_report: Callable[["FinalContext"], dict[str, Any]] | None = None
 
     def evaluate_seeds(
         self, greedy_action: GreedyFn, network_params: Any, env: Any, params: Any, params_batched: bool = False
@@ -63,6 +70,40 @@ class FamilyEvaluation:
         return jax.vmap(
             lambda p, e: self.evaluate_policy(greedy_action, p, env, e), in_axes=(0, 0 if params_batched else None)
         )(network_params, params)
+
+
+@dataclasses.dataclass(frozen=True)
+class FinalContext:
+    """What a family's :attr:`FamilyEvaluation.final_report` gets.
+
+    Attributes:
+        algo: the trained :class:`~wrl_jax.agents.base.Algorithm` (``greedy_action``,
+            and ``sample_action`` where the algorithm has a stochastic policy).
+        network_params: every seed's policy parameters (leading axis: seeds).
+        env: the environment trained on.
+        params: the environment params of the first seed (a sweep's per-seed
+            constants are not re-evaluated here).
+        seeds: the seed values, in the order of ``network_params``.
+        out_dir: the run directory (for media), or ``None``.
+    """
+
+    algo: Any
+    network_params: Any
+    env: Any
+    params: Any
+    seeds: Sequence[int]
+    out_dir: Any = None
+
+
+def run_final_report(evaluation: FamilyEvaluation, trainer: Any, runners: Any, out_dir: Any = None) -> dict[str, Any]:
+    """``evaluation.final_report`` of a trainer's runners (``{}`` when the family has none)."""
+    if evaluation.final_report is None:
+        return {}
+    network_params = jax.vmap(trainer.algo.network_params)(runners)
+    params = jax.tree.map(lambda x: x[0], runners.env_params)
+    context = FinalContext(algo=trainer.algo, network_params=network_params, env=trainer.algo.env, params=params,
+                           seeds=list(trainer.seeds), out_dir=out_dir)
+    return evaluation.final_report(context)
 
 
 def for_env(env: Any) -> FamilyEvaluation:
