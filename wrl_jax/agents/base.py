@@ -127,6 +127,10 @@ class AlgoSpec:
         study: the study's Table 3 column for this algorithm (metric -> text), shown beside ours.
         env_presets: environment name -> the preset used for it without ``--preset``
             (an environment family with its own default, e.g. the procedural warehouse).
+        env_defaults: environment name -> environment overrides a training command
+            applies unless its flags say otherwise (the fleet trains with a larger
+            block penalty than FLEET_SPEC.md's default); recorded in the run's
+            ``env_overrides`` like any flag.
     """
 
     name: str
@@ -138,10 +142,15 @@ class AlgoSpec:
     default_num_seeds: int = 4
     study: Mapping[str, str] | None = None
     env_presets: Mapping[str, str] = dataclasses.field(default_factory=dict)
+    env_defaults: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
 
     def preset_for(self, env_name: str) -> str:
         """The preset a command uses on ``env_name`` when ``--preset`` is not given."""
         return self.env_presets.get(env_name, self.default_preset)
+
+    def env_defaults_for(self, env_name: str) -> dict[str, Any]:
+        """The environment overrides a command applies on ``env_name`` unless its flags change them."""
+        return dict(self.env_defaults.get(env_name, {}))
 
 
 @struct.dataclass

@@ -321,6 +321,9 @@ class DQN(Algorithm[DQNRunner]):
     def __init__(self, config: DQNConfig, env: Environment, env_params: Any):
         if not isinstance(config, DQNConfig):
             raise TypeError(f"DQN needs a DQNConfig, got {type(config).__name__}")
+        if getattr(env, "num_agents", None) is not None:
+            raise ValueError(f"DQN is single-agent; {env.name} is a {env.num_agents}-robot fleet: train it with "
+                             f"PPO (python train_ppo.py --env {env.name})")
         super().__init__(config, env, env_params)
         self.network = MLP(hidden_sizes=config.hidden_sizes, output_size=env.num_actions, activation=config.activation)
         # Adam without its step size: the (traced) learning rate is applied by hand.

@@ -41,6 +41,14 @@ class EnvOptions:
     """include the carrying flag in the observation (False: the study's failure mode)"""
     collision_bug: bool = False
     """reproduce the study's collision bug"""
+    num_robots: int | None = None
+    """fleet environments: robots K (default 4 on Fleet-12x12-v0)"""
+    block_penalty: float | None = None
+    """fleet environments: reward for a blocked move"""
+    view_radius: int | None = None
+    """fleet environments: radius V of each robot's egocentric window"""
+    shaping: str | None = None
+    """fleet environments: distance of the shaping term, bfs or manhattan"""
 
     def overrides(self) -> dict[str, Any]:
         """Keyword overrides for ``wrl_jax.make``: only what differs from the registered environment."""
@@ -150,7 +158,7 @@ def parse(algo: str, argv: list[str] | None = None) -> Command:
     pre.add_argument("--resume", action="store_true")
     known, _ = pre.parse_known_args(argv)
 
-    env_defaults = EnvOptions(env=known.env)
+    env_defaults = EnvOptions(env=known.env, **spec.env_defaults_for(known.env))
     if known.preset is None:
         known.preset = spec.preset_for(known.env)
     run_defaults = RunOptions(preset=known.preset, num_seeds=spec.default_num_seeds)
@@ -202,7 +210,12 @@ def validate(command: Command) -> None:
     run, spec = command.run, command.spec
     if run.preset not in spec.presets:
         raise ValueError(f"unknown {spec.name} preset {run.preset!r}; choose from {sorted(spec.presets)}")
-    registry.entry(command.env.env)  # unknown environment -> ValueError
+    family = registry.entry(command.env.env).family  # unknown environment -> ValueError
+    fleet_only = [name for name in ("num_robots", "block_penalty", "view_radius", "shaping")
+                  if getattr(command.env, name) is not None]
+    if fleet_only and family != "fleet":
+        flags = ", ".join("--" + name.replace("_", "-") for name in fleet_only)
+        raise ValueError(f"{flags}: fleet options, but --env {command.env.env} is a {family!r} environment")
     if run.num_seeds < 1:
         raise ValueError(f"--num-seeds must be at least 1, got {run.num_seeds}")
     if run.seed < 0:

@@ -69,6 +69,11 @@ class Environment(gymnax_environment.Environment, Generic[StateT, ParamsT]):
     """The family folder under :mod:`wrl_jax.envs` (``"warehouse"``, ``"fleet"``...): which
     evaluation hook the training driver uses (:mod:`wrl_jax.training.evaluation`)."""
 
+    num_agents: int | None = None
+    """Agents acting in one step. ``None``: a single-agent family (no agent axis). A multi-agent family
+    (the fleet) sets it to ``K``: its observations, actions and rewards carry a leading agent axis of
+    that length, while ``terminated`` and ``truncated`` stay per environment (one shared episode)."""
+
     def __init__(self, default_params: ParamsT | None = None):
         self._default_params = default_params
         self._fingerprint = params_fingerprint(default_params)
@@ -170,6 +175,15 @@ class Environment(gymnax_environment.Environment, Generic[StateT, ParamsT]):
         return jax.vmap(self.step, in_axes=(0, 0, 0, None))(keys, state, action, params)
 
     # ------------------------------------------------------------ family hooks
+    def onehot_coordinates(self) -> tuple[int, int, int, int] | None:
+        """Where an observation holds grid cells, for networks that one-hot encode them (or ``None``).
+
+        ``(count, values, offset, scale)``: the first ``count`` observation values are
+        cells, value ``x`` is cell index ``round(x * scale) + offset`` in ``0..values-1``.
+        PPO's ``obs_encoding="onehot"`` reads it; a family without it only offers ``"raw"``.
+        """
+        return None
+
     def reset_env(self, key: jax.Array, params: ParamsT) -> tuple[Any, StateT]:
         raise NotImplementedError
 

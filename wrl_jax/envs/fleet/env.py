@@ -344,7 +344,10 @@ class Fleet(Environment[FleetState, FleetParams]):
     per-robot ``Discrete(5)`` (what a shared policy samples for each robot),
     :meth:`multi_action_space` the joint one. ``reward`` is ``(K,)`` float32;
     ``terminated`` (always False) and ``truncated`` are scalars; ``info``
-    holds the per-robot flags of :data:`FLAGS`.
+    holds the per-robot flags of :data:`FLAGS` and ``final_global_state``, the
+    :func:`global_state` of the state the transition reached (before an
+    auto-reset: what a centralised critic bootstraps a truncated shift from; it
+    costs nothing where unused, since XLA drops it from a jitted program).
     """
 
     family = "fleet"
@@ -352,6 +355,7 @@ class Fleet(Environment[FleetState, FleetParams]):
     def __init__(self, params: FleetParams, view_radius: int = 2, name: str = "Fleet"):
         self.size = int(params.shelves.shape[0])
         self.num_robots = int(params.starts.shape[0])
+        self.num_agents = self.num_robots
         self.view_radius = int(view_radius)
         self._name = name
         super().__init__(params)
@@ -371,6 +375,10 @@ class Fleet(Environment[FleetState, FleetParams]):
     def obs_size(self) -> int:
         return observation_size(self.view_radius)
 
+    def onehot_coordinates(self) -> tuple[int, int, int, int]:
+        """Four coordinates (own row and col, target row and col), each ``i / (N - 1)``: ``N`` values."""
+        return (4, self.size, 0, self.size - 1)
+
     def __repr__(self) -> str:
         return f"Fleet({self._name!r}, size={self.size}, num_robots={self.num_robots}, view_radius={self.view_radius})"
 
@@ -384,7 +392,8 @@ class Fleet(Environment[FleetState, FleetParams]):
         tasks = draw_tasks(key, params, self.num_robots)
         next_state, reward, truncated, flags = fleet_transition(state, action, tasks, params)
         obs = fleet_observation(next_state, params, self.view_radius)
-        return obs, next_state, reward, jnp.zeros((), dtype=bool), truncated, flags
+        info = {**flags, "final_global_state": global_state(next_state, params)}
+        return obs, next_state, reward, jnp.zeros((), dtype=bool), truncated, info
 
     def step(self, key: jax.Array, state: FleetState, action: Any, params: FleetParams | None = None):
         """The base class's ``step`` (same keys, draws, outputs and bits), with a cheaper auto-reset.
@@ -418,7 +427,8 @@ class Fleet(Environment[FleetState, FleetParams]):
             obs = expand_observations(*parts, self.view_radius)
         else:
             final_obs, obs = final_parts, parts
-        info = {**flags, "final_obs": final_obs, "final_observation": final_obs}
+        info = {**flags, "final_global_state": global_state(reached, params), "final_obs": final_obs,
+                "final_observation": final_obs}
         return obs, next_state, reward, jnp.zeros((), dtype=bool), truncated, info
 
     def get_obs(self, state: FleetState, params: FleetParams | None = None, key: jax.Array | None = None):

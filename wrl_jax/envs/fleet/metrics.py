@@ -87,6 +87,45 @@ def episode_counts(env: Any, params: FleetParams, planner: str, key: jax.Array, 
     return counts
 
 
+def policy_episode_counts(env: Any, params: FleetParams, policy: Any, key: jax.Array,
+                          horizon: int) -> dict[str, jax.Array]:
+    """:func:`episode_counts` with a learned policy in the planner's place: the same episodes for the same key.
+
+    ``policy(obs (K, D), key) -> actions (K,)``. The environment's draws (the reset and
+    each step's tasks) come from ``key`` exactly as in :func:`episode_counts`, so a
+    policy and a planner given the same key start the same shifts and are offered the
+    same task draws; the policy's own keys (a sampled policy's) are a separate
+    stream, ``split(fold_in(key, 1), horizon)``.
+    """
+    reset_key, scan_key = jax.random.split(key)
+    obs, state = env.reset_env(reset_key, params)
+    zeros = {name: jnp.zeros(env.num_robots, dtype=jnp.int32) for name in COUNTED}
+    step_keys = jax.random.split(scan_key, horizon)
+    policy_keys = jax.random.split(jax.random.fold_in(key, 1), horizon)
+
+    def one_step(carry, keys):
+        obs, state, counts = carry
+        step_key, policy_key = keys
+        action = policy(obs, policy_key)
+        obs, state, _, _, _, flags = env.transition(step_key, state, action, params)
+        counts = {name: counts[name] + flags[name].astype(jnp.int32) for name in COUNTED}
+        return (obs, state, counts), None
+
+    (_, _, counts), _ = jax.lax.scan(one_step, (obs, state, zeros), (step_keys, policy_keys))
+    return counts
+
+
+def mean_round_trip_jax(params: FleetParams) -> jax.Array:
+    """:func:`mean_round_trip` in float32 inside ``jit`` (padding rows of items and stations masked out)."""
+    items, stations = params.items, params.stations
+    station_to_item = params.item_dist[:, stations[:, 0], stations[:, 1]]  # [i, g]
+    item_to_station = params.station_dist[:, items[:, 0], items[:, 1]].T  # [i, g]
+    real = (jnp.arange(items.shape[0])[:, None] < params.num_items) & (
+        jnp.arange(stations.shape[0])[None, :] < params.num_stations)
+    total = jnp.where(real, station_to_item + item_to_station, 0).sum().astype(jnp.float32)
+    return total / (params.num_items * params.num_stations).astype(jnp.float32)
+
+
 @functools.partial(jax.jit, static_argnames=("env", "planner", "num_episodes", "horizon"))
 def run_episodes(env: Any, params: FleetParams, planner: str, key: jax.Array, num_episodes: int,
                  horizon: int) -> dict[str, jax.Array]:

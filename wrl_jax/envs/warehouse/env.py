@@ -87,6 +87,10 @@ class Warehouse(Environment[EnvState, EnvParams]):
     def obs_size(self) -> int:
         return 7 if self.observe_carrying else 6
 
+    def onehot_coordinates(self) -> tuple[int, int, int, int]:
+        """Six coordinates (robot, item, goal), each ``i / (N - 1)`` for ``i`` in ``-1..N-1``: ``N + 1`` values."""
+        return (6, self.size + 1, 1, self.size - 1)
+
     def __repr__(self) -> str:
         return (
             f"Warehouse(size={self.size}, max_items={self.max_items}, "
