@@ -19,7 +19,8 @@ then ``--repeats`` timed calls, each ``block_until_ready``-ed, median reported):
    * ``procedural-1``: ``ProceduralWarehouse`` on a pool of ONE layout, the 12x12 map padded
      to 16x16 (the same observation as below, no per-env layouts: the observation's cost alone);
    * ``procedural``: ``ProceduralWarehouse`` on a pool of ``--pool-size`` generated layouts,
-     each environment on its own layout;
+     each environment on its own layout, with the 80-value fleet robot observation (its window
+     from bit masks of the episode's packed floor rows);
    * ``procedural-scalars``: the same with ``observe_window=False`` (the five scalars only): per-env
      layouts without the window, to separate the two costs.
 4. The pool's memory per layout, and a refresh's cost against a rollout's.
@@ -201,6 +202,7 @@ def bench_steps(batch: int, horizon: int, repeats: int, pool_size: int) -> tuple
                "rollout_median_s": statistics.median(runs["procedural"]["times"]),
                "bytes_per_layout": bytes_per_layout(gen_params.pool),
                "pool_bytes": bytes_per_layout(gen_params.pool)["total"] * pool_size,
+               "walls_bytes_per_layout": int(gen_params.walls.nbytes) // pool_size,
                "reset_obs_bytes_per_layout": int(gen_params.reset_obs.nbytes) // pool_size}
     refresh["refresh_over_rollout"] = refresh["median_s"] / refresh["rollout_median_s"]
     print(f"refresh of {pool_size} layouts: {refresh['median_s'] * 1e3:.1f} ms = "

@@ -178,6 +178,8 @@ def test_bad_generator_config_is_a_clear_error():
         gen.GeneratorConfig(min_shape=(2, 2), max_items=8)
     with pytest.raises(ValueError, match="density"):
         gen.GeneratorConfig(density=(0.5, 0.2))
+    with pytest.raises(ValueError, match="aisle"):
+        gen.GeneratorConfig(aisle=(0, 2))
 
 
 # ---------------------------------------------------------------- hashing, held-out, pools
@@ -271,7 +273,7 @@ def test_env_steps_a_batch_on_per_env_layouts_and_resets_from_the_pool(env_and_p
     index = np.asarray(states.layout_index)
     assert len(np.unique(index[0])) > 50  # per-env layouts at the first reset
     # Every state's floor is its pool slot's, its optimum the slot's optimum for its item.
-    np.testing.assert_array_equal(np.asarray(states.blocked), pool.layouts.blocked[index])
+    np.testing.assert_array_equal(np.asarray(env.blocked(states)), pool.layouts.blocked[index])
     np.testing.assert_array_equal(np.asarray(states.optimal),
                                   pool.optimal[index, np.asarray(states.item_index)])
     # max_steps=12: every env truncates at least three times in 40 steps and draws new slots.
@@ -301,7 +303,7 @@ def test_refresh_keeps_episodes_in_flight_and_new_resets_use_the_new_pool(env_an
     _, (states, _, _, terminated, truncated, _) = rollout(fresh, state, jax.random.key(2))
     done = np.asarray(terminated | truncated)
     first_done = done.argmax(axis=0)
-    blocked, index = np.asarray(states.blocked), np.asarray(states.layout_index)
+    blocked, index = np.asarray(env.blocked(states)), np.asarray(states.layout_index)
     old, new = np.asarray(params.pool.layouts.blocked), np.asarray(fresh.pool.layouts.blocked)
     for env_index in range(BATCH):
         until = first_done[env_index]
@@ -351,7 +353,7 @@ def test_observation_is_the_fleet_robot_observation_with_off_grid_padding():
     @jax.jit
     def probe(params):
         obs, state = env.reset_to(0, 0, params)
-        expected = robot_observations(state.blocked, state.pos[None], jnp.array([[2, 3]]), jnp.array([False]), 1, 6)
+        expected = robot_observations(env.blocked(state), state.pos[None], jnp.array([[2, 3]]), jnp.array([False]), 1, 6)
         _, bumped, _, _, _, info = env.transition(None, state, jnp.int32(3), params)  # right, into the padding
         return obs, expected[0], bumped.pos, info["wall_bump"], info["collision"]
 
@@ -366,6 +368,91 @@ def test_observation_is_the_fleet_robot_observation_with_off_grid_padding():
     assert full[1, 0, 3] == 1 and full[1].sum() == 1 and full[2, 2, 3] == 1 and full[0, 1, 1] == 1
     assert bool(wall_bump) and not bool(collision)
     np.testing.assert_array_equal(np.asarray(bumped_pos), [0, 3])
+
+
+@pytest.mark.parametrize("view_radius", [0, 1, 2, 3])
+def test_bit_mask_observation_is_robot_observations_bit_for_bit(view_radius):
+    """The packed-row window (V <= 2) equals the gathers of ``robot_observations`` on random states.
+
+    Layouts from 3x3 to 12x12 in a 12x12 padding, so windows reach off-grid cells of small floors
+    and the wall ring; positions anywhere on the real floor (shelves too), either target.
+    V = 3 takes the gather path (no 31-bit mask) and must agree as well.
+    """
+    env, params = make_procedural(pool_size=64, min_shape=(3, 3), max_shape=(12, 12), max_items=1,
+                                  view_radius=view_radius)
+    assert env.bit_windows == (view_radius <= 2)
+
+    def one(key):
+        key_reset, key_row, key_col, key_carry = jax.random.split(key, 4)
+        _, state = env.reset(key_reset, params)
+        pos = jnp.stack([jax.random.randint(key_row, (), 0, state.height),
+                         jax.random.randint(key_col, (), 0, state.width)])
+        state = state.replace(pos=pos, carrying=jax.random.bernoulli(key_carry))
+        target = jnp.where(state.carrying, state.goal, state.item_pos)
+        floor = params.pool.layouts.blocked[state.layout_index]
+        expected = robot_observations(floor, state.pos[None], target[None], state.carrying[None], view_radius, 12)
+        return env.observe(state), expected[0], env.blocked(state), floor, state.pos, state.height
+
+    obs, expected, unpacked, floor, pos, height = jax.jit(jax.vmap(one))(jax.random.split(jax.random.key(3), 4000))
+    np.testing.assert_array_equal(np.asarray(unpacked), np.asarray(floor))
+    np.testing.assert_array_equal(np.asarray(obs).view(np.uint32), np.asarray(expected).view(np.uint32))
+    side = 2 * view_radius + 1
+    shelf = np.asarray(obs)[:, 5:5 + side * side]
+    assert 0 < shelf.mean() < 1  # the windows see floor and walls, not one of them only
+    # Windows that reach the off-grid rows below a floor shorter than the padding.
+    sees_padding = (np.asarray(height) < 12) & (np.asarray(pos)[:, 0] + view_radius >= np.asarray(height))
+    assert sees_padding.sum() > (100 if view_radius else -1)
+
+
+def test_packed_wall_rows_agree_with_the_grid_and_the_fleet_masks():
+    """``wall_rows`` round-trips (one word and two words a row), ``wall_bit`` reads it, and the row masks
+    equal ``window_masks`` at every cell (the fleet's table), off-grid ring included."""
+    from wrl_jax.core.observation import (
+        row_shelf_masks,
+        row_windows_supported,
+        unpack_wall_rows,
+        wall_bit,
+        wall_rows,
+        window_masks,
+    )
+
+    grid = np.asarray(jax.random.bernoulli(jax.random.key(4), 0.35, (7, 30)))
+    cells = np.stack(np.meshgrid(np.arange(7), np.arange(30), indexing="ij"), axis=-1).reshape(-1, 2)
+    for radius, width in ((2, 12), (1, 30), (2, 30)):  # 16, 32 and 34 walled columns: 1, 1 and 2 words
+        floor = jnp.asarray(grid[:, :width])
+        rows = wall_rows(floor, radius)
+        assert rows.shape == (7 + 2 * radius, 1 if width + 2 * radius <= 32 else 2) and rows.dtype == jnp.uint32
+        np.testing.assert_array_equal(np.asarray(unpack_wall_rows(rows, (7, width), radius)), grid[:, :width])
+        mine = cells[cells[:, 1] < width]
+        bits = jax.vmap(lambda cell, rows=rows, radius=radius: wall_bit(rows, cell, radius))(jnp.asarray(mine))
+        np.testing.assert_array_equal(np.asarray(bits), grid[mine[:, 0], mine[:, 1]])
+        assert row_windows_supported(width, radius) == (rows.shape[1] == 1)
+        if rows.shape[1] == 1:
+            expected = np.asarray(window_masks(floor, radius))[mine[:, 0], mine[:, 1]]
+            np.testing.assert_array_equal(np.asarray(row_shelf_masks(rows, jnp.asarray(mine), radius)), expected)
+    with pytest.raises(ValueError, match="one word per walled row"):
+        row_shelf_masks(wall_rows(jnp.asarray(grid), 2), jnp.zeros((1, 2), jnp.int32), 2)
+
+
+def test_reset_draws_slot_and_item_from_jax_random_bits(env_and_params):
+    """The written-out reset draw is ``jax.random.bits(key, (2,), uint32)`` through Lemire's map, bit for bit."""
+    from wrl_jax.envs.procedural.env import draw_episode
+    from wrl_jax.envs.warehouse.env import item_from_word
+
+    _, params = env_and_params
+    num_items = params.pool.layouts.num_items
+    keys = jax.random.split(jax.random.key(11), 2000)
+
+    def expected(key):
+        words = jax.random.bits(key, (2,), jnp.uint32)
+        slot = item_from_word(words[0], jnp.int32(NUM_LAYOUTS))
+        return slot, item_from_word(words[1], num_items[slot])
+
+    ours = jax.jit(jax.vmap(lambda key: draw_episode(key, num_items, NUM_LAYOUTS)))(keys)
+    theirs = jax.jit(jax.vmap(expected))(keys)
+    for a, b in zip(ours, theirs):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert len(np.unique(np.asarray(ours[0]))) > 1500 and (np.asarray(ours[1]) < np.asarray(num_items)[ours[0]]).all()
 
 
 def test_registry_make_returns_env_and_params(env_and_params):
@@ -461,3 +548,105 @@ def test_greedy_evaluation_on_heldout_layouts(env_and_params):
     summary = evaluation.summarize(result, [0, 1])
     assert summary["success_rate"] == delivered.sum() / result.real.sum()
     assert "held-out layouts" in evaluation.format_report(summary, "greedy")
+
+
+def _toward_target(network_params, obs):
+    """A stand-in policy: head for the target, rows first for "seed" 0, columns first for 1 (no learning)."""
+    d_row, d_col = obs[2] - obs[0], obs[3] - obs[1]
+    vertical = jnp.where(d_row < 0, 0, 1)
+    horizontal = jnp.where(d_col < 0, 2, 3)
+    rows_first = (network_params == 0) & (d_row != 0) | (d_col == 0)
+    return jnp.where(rows_first, vertical, horizontal).astype(jnp.int32)
+
+
+@pytest.fixture(scope="module")
+def ood():
+    """The out-of-distribution sets for the default generator, 16 layouts each, 3 MovingAI placements (compiled once)."""
+    from wrl_jax.envs.procedural import evaluation
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(evaluation, "MOVINGAI_DRAWS", 3)
+        return evaluation.ood_sets(CONFIG, ood_layouts=16)
+
+
+def test_final_report_measures_heldout_and_ood_sets(env_and_params, ood, monkeypatch):
+    """The final generalization report: sets, sizes, yardsticks, per-seed rows, the hash check, the tables."""
+    from types import SimpleNamespace
+
+    from wrl_jax.envs.procedural import evaluation
+    from wrl_jax.training.evaluation import FinalContext
+
+    monkeypatch.setattr(evaluation, "FINAL_HELDOUT_LAYOUTS", 48)
+
+    def ood_sets(generator, ood_layouts=None):  # the fixture's sets (generated once for the module)
+        assert generator == CONFIG
+        return ood
+
+    monkeypatch.setattr(evaluation, "ood_sets", ood_sets)
+    env, params = env_and_params
+    params = params.replace(max_steps=jnp.int32(60))
+    context = FinalContext(algo=SimpleNamespace(greedy_action=_toward_target), network_params=jnp.arange(2),
+                           env=env, params=params, seeds=[7, 8])
+    report = evaluation.final_report(context)
+    heldout, ood = report["heldout"], report["ood"]
+    assert heldout["layouts"] == 48 - heldout["overlap_with_training"] and heldout["overlap_with_training"] == 0
+    assert set(ood) == {"dense", "narrow_shelves", "study_8x8", "study_12x12", "movingai"}
+    assert [ood[name]["layouts"] for name in ("dense", "narrow_shelves", "movingai")] == [16, 16, 3]
+    assert ood["study_8x8"]["episodes"] == 2 * 10 and ood["study_12x12"]["episodes"] == 2 * 20
+    assert ood["study_8x8"]["bfs_optimum"] == 14.0  # the study's mean optimum (wrl_jax.layout's BFS)
+    assert ood["movingai"]["episodes"] == 2 * 3 * 8
+    for row in [heldout, *ood.values()]:
+        assert [entry["seed"] for entry in row["per_seed"]] == [7, 8]
+        assert sum(entry["episodes"] for entry in row["per_seed"]) == row["episodes"]
+        assert 0.0 <= row["delivery_rate"] <= 1.0 and row["optimal_rate"] <= row["delivery_rate"]
+        if row["mean_excess"] is not None:  # nobody beats the BFS optimum
+            assert row["mean_excess"] >= 0 and row["excess_fraction"] == row["mean_excess"] / row["mean_optimal"]
+    assert 0 < heldout["delivery_rate"] < 1  # the stand-in policy walks into shelves on some floors only
+    assert report["final_report_seconds"] > 0
+    details = evaluation.format_details(report)
+    assert "| heldout | 48 |" in details and "| movingai | 3 |" in details and "seed 8" in details
+    summary = {"eval_layouts": 64, "episodes_per_seed": 1, "success_rate": 1.0, "optimal_rate": 1.0,
+               "mean_excess": 0.0, "collisions_per_episode": 0.0, **report}
+    assert "final: 48 held-out layouts" in evaluation.format_report(summary, "x")
+
+
+def test_final_sets_agree_with_the_periodic_evaluation_and_drop_training_layouts(env_and_params):
+    from wrl_jax.envs.procedural import evaluation
+
+    env, params = env_and_params
+    params = params.replace(max_steps=jnp.int32(60))
+    heldout, overlap = evaluation.heldout_set(env.generator, params.pool, count=48)
+    assert overlap == 0 and heldout.size == 48
+    # Plant three of them in a "training pool": the hash check finds and drops exactly those.
+    planted = jax.tree.map(lambda t, h: t.at[:3].set(h[:3]), params.pool.layouts, heldout.layouts)
+    kept, overlap = evaluation.heldout_set(env.generator, params.pool.replace(layouts=planted), count=48)
+    assert overlap == 3 and kept.size == 45
+    # One batch over sets (padded to 20 item rows by the study map) = each pool evaluated alone.
+    sets = [heldout, evaluation.LayoutSet("study", "", jax.tree.map(
+        lambda x: x[None], evaluation.study_layout("12x12", env.max_shape)))]
+    together = evaluation.evaluate_sets(_toward_target, jnp.arange(2), env, params, sets, [0, 1], overall="all")
+    alone = jax.tree.map(np.asarray, jax.jit(jax.vmap(
+        lambda net: evaluation.evaluate_pool(_toward_target, net, env, params, pool_from_layouts(
+            [_slot(heldout.layouts, i) for i in range(48)]))))(jnp.arange(2)))
+    delivered = alone.delivered & alone.real
+    assert together["heldout"]["episodes"] == alone.real.sum()
+    assert together["heldout"]["delivery_rate"] == delivered.sum() / alone.real.sum()
+    assert together["heldout"]["per_seed"][1]["delivery_rate"] == delivered[1].sum() / alone.real[1].sum()
+    assert together["all"]["episodes"] == together["heldout"]["episodes"] + 2 * 20
+    with pytest.raises(ValueError, match="padded to"):
+        evaluation.evaluate_sets(_toward_target, jnp.arange(1), env, params, [evaluation.LayoutSet(
+            "small", "", jax.tree.map(lambda x: x[None], evaluation.study_layout("8x8", (8, 8))))], [0])
+
+
+def test_ood_generators_are_out_of_distribution(ood):
+    sets = {s.name: s for s in ood}
+    assert list(sets) == ["dense", "narrow_shelves", "study_8x8", "study_12x12", "movingai"]
+    dense = jax.tree.map(np.asarray, sets["dense"].layouts)
+    floor = (np.arange(16)[None, :, None] < dense.height[:, None, None]) & (
+        np.arange(16)[None, None, :] < dense.width[:, None, None])
+    density = (dense.blocked & floor).sum(axis=(1, 2)) / floor.sum(axis=(1, 2))
+    assert np.median(density) > CONFIG.density[1]  # above the training range (unreached cells only add shelves)
+    narrow = jax.tree.map(np.asarray, sets["narrow_shelves"].layouts)
+    assert (narrow.height == 16).all() and (narrow.width == 16).all()
+    assert narrow.blocked.mean() > 0.3
+    assert sets["movingai"].layouts.max_shape == (16, 16) and sets["study_12x12"].size == 1

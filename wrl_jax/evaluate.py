@@ -2,6 +2,7 @@
 
 Every seed's greedy policy on every item index; prints the Table-3-style table
 (``--items`` adds the per-item table, ``--json FILE`` writes the full result).
+``--layout PATH`` (repeatable) evaluates a procedural-warehouse run on map files instead.
 """
 
 import sys

@@ -1,4 +1,11 @@
-"""``python -m wrl_jax.evaluate --run DIR``: evaluate a saved run's greedy policy with its family's hook."""
+"""``python -m wrl_jax.evaluate --run DIR [--layout PATH ...]``: evaluate a saved run's greedy policy.
+
+Without ``--layout``, with the run's family hook (what training reports). With
+``--layout`` (repeatable), on the given map files instead, every item of each:
+only for runs of a single-robot layout environment (the procedural warehouse,
+whose observation is an egocentric window and so can be read on any floor up
+to its padded shape).
+"""
 
 from __future__ import annotations
 
@@ -12,6 +19,7 @@ from typing import Any
 from wrl_jax.agents import get_spec
 from wrl_jax.cli.machine import DEFAULT_XLA_OPT_LEVEL, apply_xla_opt_level
 from wrl_jax.cli.options import EnvOptions, build, config_from_dict
+
 
 def evaluate_run(run_dir: str | os.PathLike) -> dict[str, Any]:
     """Load a run's checkpoint (any algorithm) and evaluate every seed on every item.
@@ -47,8 +55,53 @@ def evaluate_run(run_dir: str | os.PathLike) -> dict[str, Any]:
     return summary
 
 
+LAYOUT_FAMILIES = ("procedural",)
+"""Families whose policies can be evaluated on arbitrary layout files (``--layout``)."""
+
+
+def evaluate_layouts(run_dir: str | os.PathLike, paths: list[str]) -> dict[str, Any]:
+    """A run's greedy policy (every seed) on map files: per file and ``overall`` statistics, and a ``table``.
+
+    Refuses (``ValueError`` naming the run or the file) a run whose environment
+    is not a single-robot layout environment, and a layout larger than the
+    padded shape of the run's environment; both before any checkpoint is loaded.
+    """
+    import jax
+
+    from wrl_jax import training
+    from wrl_jax.core import registry
+    from wrl_jax.training import checkpoint
+
+    run_dir = Path(run_dir)
+    meta = checkpoint.read_metadata(run_dir)
+    family = registry.entry(meta["env"]).family
+    if family not in LAYOUT_FAMILIES:
+        raise ValueError(f"--layout needs a run of a single-robot layout environment (Procedural-Warehouse-v0: "
+                         f"its egocentric window can be read on any floor); {run_dir} holds a {meta['algo']} run "
+                         f"on {meta['env']} (family {family!r})")
+    from wrl_jax.envs.procedural import evaluation as procedural_evaluation
+
+    spec = get_spec(meta["algo"])
+    config = config_from_dict(spec.config_cls, meta["config"])
+    algo = build(spec, config, EnvOptions(env=meta["env"], **meta.get("env_overrides", {})))
+    env = algo.env
+    sets = procedural_evaluation.layout_file_sets(paths, env.max_shape, env.generator.max_items)
+    trainer = training.Trainer(algo, meta["seeds"], training.LoopConfig(progress=False))
+    runners, meta = checkpoint.load(run_dir, trainer.template())
+    network_params = jax.vmap(algo.network_params)(runners)
+    params = jax.tree.map(lambda x: x[0], runners.env_params)
+    report = procedural_evaluation.evaluate_sets(algo.greedy_action, network_params, env, params, sets,
+                                                 trainer.seeds, overall="overall")
+    overall = report.pop("overall")
+    label = (f"{spec.name.upper()} {meta['env']} ({meta.get('preset', '?')}, {len(trainer.seeds)} seeds, "
+             f"{meta['updates_done'] * trainer.steps_per_update:,} steps) on {len(sets)} layout file(s)")
+    table = procedural_evaluation.format_sets({**report, "overall": overall})
+    return {"run": str(run_dir), "env": meta["env"], "seeds": list(trainer.seeds), "layouts": report,
+            "overall": overall, "updates_done": meta["updates_done"], "table": f"{label}\n\n{table}", "items": ""}
+
+
 def evaluate_main(argv: list[str] | None = None) -> int:
-    """``python -m wrl_jax.evaluate --run DIR [--json FILE] [--items]``."""
+    """``python -m wrl_jax.evaluate --run DIR [--layout PATH ...] [--json FILE] [--items]``."""
     parser = argparse.ArgumentParser(
         prog="python -m wrl_jax.evaluate",
         description="Greedy evaluation of a trained run (any algorithm) on every item for every seed.",
@@ -56,13 +109,16 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run", required=True, help="run directory holding checkpoint.msgpack")
     parser.add_argument("--json", default=None, help="also write the evaluation (with per-seed per-item rows) here")
     parser.add_argument("--items", action="store_true", help="print the per-item table too")
+    parser.add_argument("--layout", action="append", default=None, metavar="PATH",
+                        help="evaluate on this map file instead (ASCII or MovingAI .map; repeat for several); "
+                             "only for procedural-warehouse runs")
     parser.add_argument("--xla-opt-level", type=int, default=DEFAULT_XLA_OPT_LEVEL)
     args = parser.parse_args(argv)
     from wrl_jax.training import checkpoint
 
     apply_xla_opt_level(args.xla_opt_level)
     try:
-        summary = evaluate_run(args.run)
+        summary = evaluate_layouts(args.run, args.layout) if args.layout else evaluate_run(args.run)
     except (ValueError, checkpoint.CheckpointError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

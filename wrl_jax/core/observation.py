@@ -195,3 +195,74 @@ def robot_observations_from_bits(
     """
     scalars, masks = robot_observation_parts(shelf_masks, pos, target, carrying, view_radius, size)
     return expand_observations(scalars, masks, view_radius)
+
+
+# ----------------------------------------------------------------- per-episode floors as packed rows
+WORD_BITS = 32
+
+
+def wall_words(width: int, view_radius: int) -> int:
+    """uint32 words per row of :func:`wall_rows`: ``ceil((W + 2V) / 32)``."""
+    return -(-(int(width) + 2 * int(view_radius)) // WORD_BITS)
+
+
+def row_windows_supported(width: int, view_radius: int) -> bool:
+    """True when :func:`row_shelf_masks` applies: the window fits a mask and a walled row fits one word."""
+    return bit_windows_supported(view_radius) and wall_words(width, view_radius) == 1
+
+
+def wall_rows(blocked: jax.Array, view_radius: int) -> jax.Array:
+    """``(H + 2V, wall_words(W, V))`` uint32: the grid walled with ``V`` blocked cells, each row packed in words.
+
+    Why: an environment whose every episode has its own floor (a batch of generated layouts)
+    cannot share :func:`window_masks`' ``(H, W)`` int32 table between episodes, and copying a
+    table into every state costs 4 bytes a cell at every auto-reset. The walled rows are
+    ``4 (H + 2V)`` bytes (80 at 16x16, ``V = 2``: less than the floor as a bool grid), and one
+    robot's shelf mask is ``2V + 1`` words shifted and masked (:func:`row_shelf_masks`). Bit ``b``
+    of word ``k`` of row ``r`` is walled cell ``(r, 32 k + b)``, i.e. floor cell
+    ``(r - V, 32 k + b - V)``: set when it is blocked or off the grid; bits past the walled width are 0.
+    """
+    radius = int(view_radius)
+    height, width = blocked.shape
+    words = wall_words(width, radius)
+    walled = jnp.pad(blocked.astype(bool), radius, constant_values=True)
+    walled = jnp.pad(walled, ((0, 0), (0, words * WORD_BITS - (width + 2 * radius))))
+    weights = jnp.left_shift(jnp.uint32(1), jnp.arange(WORD_BITS, dtype=jnp.uint32))
+    bits = walled.reshape(height + 2 * radius, words, WORD_BITS)
+    return jnp.sum(jnp.where(bits, weights, jnp.uint32(0)), axis=-1, dtype=jnp.uint32)
+
+
+def unpack_wall_rows(rows: jax.Array, shape: tuple[int, int], view_radius: int) -> jax.Array:
+    """The ``(..., H, W)`` bool grid (True: blocked or off-grid) of :func:`wall_rows`' output ``(..., H + 2V, words)``."""
+    radius = int(view_radius)
+    height, width = shape
+    columns = np.arange(width) + radius
+    words = rows[..., radius:radius + height, :][..., columns // WORD_BITS]
+    return ((words >> (columns % WORD_BITS).astype(np.uint32)) & 1).astype(bool)
+
+
+def wall_bit(rows: jax.Array, cell: jax.Array, view_radius: int) -> jax.Array:
+    """bool: floor cell ``cell (2,)`` is blocked or off-grid, read from :func:`wall_rows` (one word)."""
+    radius = int(view_radius)
+    col = cell[1] + radius
+    word = rows[cell[0] + radius, col // WORD_BITS]
+    return ((word >> (col % WORD_BITS).astype(jnp.uint32)) & 1).astype(bool)
+
+
+def row_shelf_masks(rows: jax.Array, pos: jax.Array, view_radius: int) -> jax.Array:
+    """``(K,)`` int32: :func:`window_masks` of the floor read at each robot's cell, from :func:`wall_rows`.
+
+    The same bits (window cell ``w = row (2V+1) + col`` is offset ``(row - V, col - V)``): window
+    row ``row`` is walled row ``pos_r + row``, shifted right by ``pos_c`` and cut to ``2V + 1`` bits.
+    Needs :func:`row_windows_supported`.
+    """
+    radius = int(view_radius)
+    side = window_size(radius)
+    if not bit_windows_supported(radius) or rows.shape[-1] != 1:
+        raise ValueError(f"row shelf masks need view_radius <= 2 and one word per walled row; got view_radius "
+                         f"{radius} and {rows.shape[-1]} words")
+    offsets = np.arange(side)
+    words = rows[pos[:, 0, None] + offsets[None, :], 0]  # (K, side): the walled rows the windows cover
+    cut = (words >> pos[:, 1, None].astype(jnp.uint32)) & np.uint32((1 << side) - 1)
+    shifted = cut << (offsets * side).astype(np.uint32)
+    return jax.lax.reduce(shifted, np.uint32(0), jax.lax.bitwise_or, (1,)).astype(jnp.int32)

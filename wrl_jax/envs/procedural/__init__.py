@@ -6,6 +6,9 @@
 - :mod:`.movingai`: MovingAI ``.map`` files and ASCII maps into layouts.
 - :mod:`.env`: ``ProceduralWarehouse``, SPEC.md's MDP on a per-environment layout.
 - :mod:`.registration`: the factories behind ``Procedural-Warehouse-v0``.
+- :mod:`.evaluation`: the family's evaluation hook (held-out layouts in training, the final
+  generalization report on held-out and out-of-distribution sets, evaluation on map files).
+- :mod:`.render`: layout pictures and recorded episodes.
 
 docs/procedural.md explains the design and its measurements.
 """

@@ -7,10 +7,11 @@ switch. What differs is where the layout comes from and what is observed:
 - ``reset`` draws a slot of the :class:`~wrl_jax.envs.procedural.pool.LayoutPool`
   in params (one 32-bit word) and an item of that layout (another word),
   copies the layout's floor into the state and gathers the episode's first
-  observation, precomputed with the pool (``params.reset_obs``). The copy costs an ``(H, W)`` bool
-  per environment, and buys two things: a pool refresh between updates never
-  changes the floor of an episode in flight, and a step reads its own floor
-  without a gather from the pool.
+  observation, precomputed with the pool (``params.reset_obs``). The floor is
+  copied as its walled rows packed in uint32 words (``params.walls``, also
+  precomputed per layout: 80 bytes at 16x16, ``V = 2``), and the copy buys two
+  things: a pool refresh between updates never changes the floor of an
+  episode in flight, and a step reads its own floor without a gather from the pool.
 - A layout smaller than the padded shape has off-grid cells around it: a move
   onto one is a wall bump (no obstacle penalty), exactly like a move off the grid.
 - The observation is FLEET_SPEC.md's robot observation for one robot
@@ -20,6 +21,10 @@ switch. What differs is where the layout comes from and what is observed:
   egocentric window (shelves and off-grid, other robots (always empty here),
   the current target). ``observe_map=True`` appends the full padded map in
   the same three channels. No distance field or planner output is observed.
+  For ``V <= 2`` (and walled rows of at most 32 cells) the window is computed
+  from the packed rows as int32 bit masks (:func:`wrl_jax.core.observation.row_shelf_masks`,
+  then the fleet's :func:`~wrl_jax.core.observation.expand_observations`), bit for bit
+  the same observation, many times cheaper under ``vmap`` than the gathers.
 - The state carries the episode's BFS optimum (``optimal``) for evaluation.
 """
 
@@ -34,8 +39,20 @@ from flax import struct
 from gymnax.environments import spaces
 
 from wrl_jax.core.environment import Environment
-from wrl_jax.core.grid import MOVES
-from wrl_jax.core.observation import coordinate_table, observation_size, robot_observations
+from wrl_jax.core.observation import (
+    coordinate_table,
+    expand_observations,
+    observation_size,
+    robot_observation_parts,
+    robot_observations,
+    row_shelf_masks,
+    row_windows_supported,
+    unpack_wall_rows,
+    wall_bit,
+    wall_rows,
+    wall_words,
+)
+from wrl_jax.core.random import random_words, threefry2x32, threefry_key_data
 from wrl_jax.envs.procedural.generators import GeneratorConfig
 from wrl_jax.envs.procedural.pool import LayoutPool, refresh_pool
 from wrl_jax.envs.warehouse.env import check_action, item_from_word, spec_reward
@@ -47,16 +64,20 @@ MAX_POOL_SIZE = 2**16 - 1
 
 @struct.dataclass
 class ProceduralParams:
-    """The layout pool, its reset observations, episode length and SPEC.md's six reward constants (all arrays).
+    """The layout pool, what is precomputed per layout, episode length and SPEC.md's six reward constants.
 
-    ``reset_obs`` ``(P, I, obs_size)`` is the first observation of every
-    (slot, item) episode, computed with the pool (:meth:`ProceduralWarehouse.with_pool`):
-    the auto-reset of every step then gathers it instead of computing a second
-    egocentric window per environment, which measured the largest cost of a
-    step (docs/procedural.md).
+    Both per-layout arrays are computed with the pool (:meth:`ProceduralWarehouse.with_pool`), so
+    the auto-reset of every step gathers them instead of computing them per environment:
+
+    - ``walls`` ``(P, H + 2V, words)`` uint32: each floor's walled rows packed in words
+      (:func:`wrl_jax.core.observation.wall_rows`), what a state carries as its floor;
+    - ``reset_obs`` ``(P, I, obs_size)``: the first observation of every (slot, item) episode
+      (a second egocentric window per environment per step, for the reset branch of the
+      auto-reset select, measured the largest cost of a step: docs/procedural.md).
     """
 
     pool: LayoutPool
+    walls: jax.Array
     reset_obs: jax.Array
     max_steps: jax.Array
     step_penalty: jax.Array
@@ -74,9 +95,13 @@ class ProceduralParams:
 
 @struct.dataclass
 class ProceduralState:
-    """One episode. ``blocked`` ``(H, W)`` is this episode's floor (shelves and off-grid), a copy from the pool."""
+    """One episode. ``walls`` ``(H + 2V, words)`` uint32 is this episode's floor, a copy from ``params.walls``.
 
-    blocked: jax.Array
+    The floor's walled rows packed in words (:func:`wrl_jax.core.observation.wall_rows`: shelves,
+    off-grid padding and a ``V``-cell wall ring set); :meth:`ProceduralWarehouse.blocked` unpacks it.
+    """
+
+    walls: jax.Array
     height: jax.Array
     width: jax.Array
     goal: jax.Array
@@ -149,6 +174,11 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
                 f"params hold a pool of shape {tuple(blocked.shape)} with {params.pool.layouts.items.shape[-2]} "
                 f"item slots; this environment expects {expected} with {self.generator.max_items}"
             )
+        expected_walls = (self.pool_size, self.max_shape[0] + 2 * self.view_radius,
+                          wall_words(self.max_shape[1], self.view_radius))
+        if tuple(params.walls.shape) != expected_walls:
+            raise ValueError(f"params.walls has shape {tuple(params.walls.shape)}, expected {expected_walls} "
+                             f"(build params with registration.make_params or env.with_pool)")
         expected_obs = (self.pool_size, self.generator.max_items, self.obs_size)
         if tuple(params.reset_obs.shape) != expected_obs:
             raise ValueError(f"params.reset_obs has shape {tuple(params.reset_obs.shape)}, expected {expected_obs} "
@@ -168,18 +198,21 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
 
     # ------------------------------------------------------------ reset
     def reset_env(self, key: jax.Array, params: ProceduralParams) -> tuple[jax.Array, ProceduralState]:
-        """A fresh episode on a uniformly drawn pool slot, with a uniformly drawn item of that layout."""
-        words = jax.random.bits(key, (2,), jnp.uint32)
-        layout_index = item_from_word(words[0], jnp.int32(self.pool_size))
-        item_index = item_from_word(words[1], params.pool.layouts.num_items[layout_index])
-        state = initial_state(layout_index, item_index, params.pool)
+        """A fresh episode on a uniformly drawn pool slot, with a uniformly drawn item of that layout.
+
+        The two words are ``jax.random.bits(key, (2,), uint32)``, bit for bit, computed by
+        :func:`draw_episode` (the reset is paid on every step: see there for why it is written out).
+        """
+        layout_index, item_index = draw_episode(key, params.pool.layouts.num_items, self.pool_size)
+        state = initial_state(layout_index, item_index, params.pool, params.walls)
         return params.reset_obs[layout_index, item_index], state
 
     def reset_to(self, layout_index: jax.Array | int, item_index: jax.Array | int,
                  params: ProceduralParams | None = None) -> tuple[jax.Array, ProceduralState]:
         """A fresh episode on a chosen slot and item (deterministic evaluation)."""
         params = self.default_params if params is None else params
-        state = initial_state(jnp.asarray(layout_index, jnp.int32), jnp.asarray(item_index, jnp.int32), params.pool)
+        state = initial_state(jnp.asarray(layout_index, jnp.int32), jnp.asarray(item_index, jnp.int32),
+                              params.pool, params.walls)
         return self.observe(state), state
 
     # ------------------------------------------------------------ step
@@ -208,13 +241,16 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
             check_action(action)
         action = jnp.asarray(action, dtype=jnp.int32)
         pos = state.pos
-        proposed = pos + jnp.asarray(MOVES)[action]
+        # The move as arithmetic on the action (0 up, 1 down, 2 left, 3 right: grid.MOVES), not a table gather.
+        d_row = (action == 1).astype(jnp.int32) - (action == 0).astype(jnp.int32)
+        d_col = (action == 3).astype(jnp.int32) - (action == 2).astype(jnp.int32)
+        proposed = pos + jnp.stack([d_row, d_col])
         limit = jnp.stack([state.height, state.width]) - 1
         on_floor = jnp.all((proposed >= 0) & (proposed <= limit))
         wall_bump = ~on_floor
         # Off the floor, the clipped cell is the robot's own cell (one coordinate moved by one).
         clipped = jnp.clip(proposed, 0, limit)
-        collision = on_floor & state.blocked[clipped[0], clipped[1]]
+        collision = on_floor & wall_bit(state.walls, clipped, self.view_radius)
         next_pos = jnp.where(collision, pos, clipped)
 
         reward, picked_up, delivered = spec_reward(
@@ -243,8 +279,13 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         """
         target = jnp.where(state.carrying, state.goal, state.item_pos)
         size = max(self.max_shape)
-        if self.observe_window:
-            obs = robot_observations(state.blocked, state.pos[None], target[None], state.carrying[None],
+        if self.observe_window and self.bit_windows:
+            masks = row_shelf_masks(state.walls, state.pos[None], self.view_radius)
+            parts = robot_observation_parts(masks, state.pos[None], target[None], state.carrying[None],
+                                            self.view_radius, size)
+            obs = expand_observations(*parts, self.view_radius)[0]
+        elif self.observe_window:
+            obs = robot_observations(self.blocked(state), state.pos[None], target[None], state.carrying[None],
                                      self.view_radius, size)[0]
         else:
             table = jnp.asarray(coordinate_table(size))
@@ -255,21 +296,37 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         cols = jnp.arange(self.max_shape[1])[None, :]
         robot = (rows == state.pos[0]) & (cols == state.pos[1])
         target_cell = (rows == target[0]) & (cols == target[1])
-        full_map = jnp.stack([state.blocked, robot, target_cell]).astype(jnp.float32)
+        full_map = jnp.stack([self.blocked(state), robot, target_cell]).astype(jnp.float32)
         return jnp.concatenate([obs, full_map.reshape(-1)])
 
+    @property
+    def bit_windows(self) -> bool:
+        """True when the window comes from bit masks of the packed rows (``V <= 2``, walled rows of <= 32 cells)."""
+        return row_windows_supported(self.max_shape[1], self.view_radius)
+
+    def blocked(self, state: ProceduralState) -> jax.Array:
+        """``(..., H, W)`` bool: the floor of ``state`` (or of a batch of states), shelves and off-grid cells True."""
+        return unpack_wall_rows(state.walls, self.max_shape, self.view_radius)
+
     # ------------------------------------------------------------ pool
-    def reset_observations(self, pool: LayoutPool) -> jax.Array:
+    def pool_walls(self, pool: LayoutPool) -> jax.Array:
+        """``(P, H + 2V, words)`` uint32: every layout's floor as :meth:`blocked` reads it (``params.walls``)."""
+        return jax.vmap(wall_rows, in_axes=(0, None))(pool.layouts.blocked, self.view_radius)
+
+    def reset_observations(self, pool: LayoutPool, walls: jax.Array | None = None) -> jax.Array:
         """``(P, I, obs_size)``: :meth:`observe` of the first state of every (slot, item) episode."""
+        walls = self.pool_walls(pool) if walls is None else walls
         slots = jnp.arange(pool.size, dtype=jnp.int32)[:, None]
         items = jnp.arange(pool.layouts.items.shape[-2], dtype=jnp.int32)[None, :]
         slots, items = jnp.broadcast_arrays(slots, items)
-        first = jax.vmap(jax.vmap(initial_state, in_axes=(0, 0, None)), in_axes=(0, 0, None))(slots, items, pool)
+        first = jax.vmap(jax.vmap(initial_state, in_axes=(0, 0, None, None)),
+                         in_axes=(0, 0, None, None))(slots, items, pool, walls)
         return jax.vmap(jax.vmap(self.observe))(first)
 
     def with_pool(self, params: ProceduralParams, pool: LayoutPool) -> ProceduralParams:
-        """``params`` serving ``pool`` (its reset observations recomputed)."""
-        return params.replace(pool=pool, reset_obs=_reset_observations(self, pool))
+        """``params`` serving ``pool`` (its walls and reset observations recomputed)."""
+        walls, reset_obs = pool_arrays(self, pool)
+        return params.replace(pool=pool, walls=walls, reset_obs=reset_obs)
 
     def refresh_pool(self, key: jax.Array, params: ProceduralParams, count: int | None = None) -> ProceduralParams:
         """Params with the pool (or ``count`` slots of it) regenerated from ``key``; call between updates."""
@@ -280,11 +337,42 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         return state.optimal
 
 
-def initial_state(layout_index: jax.Array, item_index: jax.Array, pool: LayoutPool) -> ProceduralState:
-    """The first state of the episode on pool slot ``layout_index`` with its item ``item_index``."""
+def draw_episode(key: jax.Array, num_items: jax.Array, pool_size: int) -> tuple[jax.Array, jax.Array]:
+    """``(slot, item)`` of a fresh episode from two words ``jax.random.bits(key, (2,), uint32)`` (same bits).
+
+    Why a one-trip ``lax.while_loop``: the reset is drawn on every step of every environment,
+    and XLA fuses an elementwise producer into each consumer. Without the loop, threefry's 20
+    rounds were recomputed inside every gather and select that reads the indices (10 fusions,
+    some for each of the 80 observation values); ``lax.optimization_barrier`` does not stop it
+    on CPU. The loop's counter is threefry's first counter word (0 on its only trip), so the
+    body cannot be hoisted out as loop-invariant.
+    """
+    data = threefry_key_data(key)
+    if data is None:
+        words = random_words(key, 2)
+        layout_index = item_from_word(words[0], jnp.int32(pool_size))
+        return layout_index, item_from_word(words[1], num_items[layout_index])
+
+    def body(carry):
+        _, counter, _ = carry
+        x0, x1 = threefry2x32(data[0], data[1], counter, jnp.arange(2, dtype=jnp.uint32))
+        return jnp.bool_(False), counter + 1, x0 ^ x1
+
+    start = (jnp.bool_(True), jnp.uint32(0), jnp.zeros(2, dtype=jnp.uint32))
+    words = jax.lax.while_loop(lambda carry: carry[0], body, start)[2]
+    layout_index = item_from_word(words[0], jnp.int32(pool_size))
+    return layout_index, item_from_word(words[1], num_items[layout_index])
+
+
+def initial_state(layout_index: jax.Array, item_index: jax.Array, pool: LayoutPool,
+                  walls: jax.Array) -> ProceduralState:
+    """The first state of the episode on pool slot ``layout_index`` with its item ``item_index``.
+
+    ``walls`` is the pool's :meth:`ProceduralWarehouse.pool_walls` (``params.walls``).
+    """
     layout = jax.tree.map(lambda leaf: leaf[layout_index], pool.layouts)
     return ProceduralState(
-        blocked=layout.blocked,
+        walls=walls[layout_index],
         height=layout.height,
         width=layout.width,
         goal=layout.goal,
@@ -299,5 +387,7 @@ def initial_state(layout_index: jax.Array, item_index: jax.Array, pool: LayoutPo
 
 
 @partial(jax.jit, static_argnums=0)
-def _reset_observations(env: ProceduralWarehouse, pool: LayoutPool) -> jax.Array:
-    return env.reset_observations(pool)
+def pool_arrays(env: ProceduralWarehouse, pool: LayoutPool) -> tuple[jax.Array, jax.Array]:
+    """``(walls, reset_obs)`` of ``pool`` for ``env``'s params (one compiled program per env and pool shape)."""
+    walls = env.pool_walls(pool)
+    return walls, env.reset_observations(pool, walls)

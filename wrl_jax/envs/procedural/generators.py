@@ -51,6 +51,8 @@ class GeneratorConfig:
         min_items: the number of items is uniform in ``min_items..max_items``.
         density: ``(low, high)`` range of the obstacle density (obstacles family).
         gap_rate: ``(low, high)`` range of the fraction of shelf cells knocked out (shelf family).
+        aisle: ``(low, high)`` range of the aisle width between shelf blocks (shelf family); ``(1, 1)``
+            gives the narrowest floors (an out-of-distribution set of the final evaluation).
         shelf_mix: probability of the shelf family in the mixture.
         items_on_pick_faces: place items next to shelves first (where real pick faces are).
         min_reach: least fraction of the free floor the start must reach, else redraw.
@@ -64,6 +66,7 @@ class GeneratorConfig:
     min_items: int = 1
     density: tuple[float, float] = (0.05, 0.3)
     gap_rate: tuple[float, float] = (0.0, 0.15)
+    aisle: tuple[int, int] = (1, 2)
     shelf_mix: float = 0.5
     items_on_pick_faces: bool = True
     min_reach: float = 0.5
@@ -86,6 +89,8 @@ class GeneratorConfig:
             low, high = getattr(self, name)
             if not 0.0 <= low <= high < 1.0:
                 raise ValueError(f"{name} must be a range 0 <= low <= high < 1, got {(low, high)}")
+        if not 1 <= self.aisle[0] <= self.aisle[1]:
+            raise ValueError(f"aisle must be a range 1 <= low <= high, got {self.aisle}")
         if not 0.0 <= self.shelf_mix <= 1.0 or not 0.0 <= self.min_reach <= 1.0:
             raise ValueError("shelf_mix and min_reach must lie in [0, 1]")
         if self.max_attempts < 2:
@@ -141,12 +146,12 @@ def _floor_size(header: jax.Array, config: GeneratorConfig) -> tuple[jax.Array, 
 def shelf_floor(header: jax.Array, cells: jax.Array, config: GeneratorConfig) -> Floor:
     """A pick floor of periodic shelf blocks with random dimensions and knocked-out gaps.
 
-    Across the blocks: depth ``D`` in 1..2 cells, aisles ``A`` in 1..2; along
+    Across the blocks: depth ``D`` in 1..2 cells, aisles ``A`` in ``config.aisle`` (1..2); along
     them: length ``L`` in 2..6, cross-aisles ``C`` in 1..2; margins of 0..1
     cells on both sides; only whole blocks; horizontal or vertical blocks.
     """
     height, width = _floor_size(header, config)
-    depth, aisle = _between(header[2], 1, 2), _between(header[3], 1, 2)
+    depth, aisle = _between(header[2], 1, 2), _between(header[3], *config.aisle)
     length, cross = _between(header[4], 2, 6), _between(header[5], 1, 2)
     offset_across, offset_along = _between(header[6], 0, 1), _between(header[7], 0, 1)
     vertical = header[8] >> 31 == 1

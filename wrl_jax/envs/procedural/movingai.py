@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from wrl_jax.envs.procedural.generators import GeneratorConfig, cell_words, place
-from wrl_jax.envs.procedural.layout import PaddedLayout, from_arrays, from_layout
+from wrl_jax.envs.procedural.layout import PaddedLayout, from_arrays
 from wrl_jax.envs.warehouse.layout import parse
 
 BLOCKED_CHARS = frozenset("@OTW")
@@ -134,6 +134,12 @@ def _draw(key: jax.Array, floor, config: GeneratorConfig, num_items: jax.Array) 
 _draw = jax.jit(_draw, static_argnames=("config",))
 
 
+def is_movingai(path: str | Path, text: str) -> bool:
+    """Whether a map file is read as MovingAI (a ``.map`` suffix, or a first line ``type ...``) rather than ASCII."""
+    first = next((line for line in text.splitlines() if line.strip()), "")
+    return Path(path).suffix.lower() == ".map" or first.split()[:1] == ["type"]
+
+
 def load_map(path: str | Path, **kwargs) -> PaddedLayout:
     """A map file as a :class:`PaddedLayout`: MovingAI (a ``.map`` file, or first line ``type ...``) or ASCII.
 
@@ -143,8 +149,7 @@ def load_map(path: str | Path, **kwargs) -> PaddedLayout:
     """
     path = Path(path)
     text = path.read_text()
-    first = next((line for line in text.splitlines() if line.strip()), "")
-    if path.suffix.lower() == ".map" or first.split()[:1] == ["type"]:
+    if is_movingai(path, text):
         return movingai_layout(parse_movingai(text, str(path)), source=str(path), **kwargs)
     unknown = sorted(set(kwargs) - {"max_shape", "max_items"})
     if unknown:
@@ -153,4 +158,5 @@ def load_map(path: str | Path, **kwargs) -> PaddedLayout:
         layout = parse(text)
     except ValueError as error:
         raise ValueError(f"{path}: {error}") from None
-    return from_layout(layout, kwargs.get("max_shape"), kwargs.get("max_items"))
+    return from_arrays(np.asarray(layout.shelves, dtype=bool), layout.start, layout.goal, layout.items,
+                       kwargs.get("max_shape"), kwargs.get("max_items"), what=str(path))

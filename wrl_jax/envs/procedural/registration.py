@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import jax
 import jax.numpy as jnp
 
-from wrl_jax.envs.procedural.env import ProceduralParams, ProceduralWarehouse, _reset_observations
+from wrl_jax.envs.procedural.env import ProceduralParams, ProceduralWarehouse, pool_arrays
 from wrl_jax.envs.procedural.generators import GeneratorConfig
 from wrl_jax.envs.procedural.layout import PaddedLayout
 from wrl_jax.envs.procedural.pool import LayoutPool, generate_pool, pool_from_layouts
@@ -25,7 +25,7 @@ DEFAULT_MAX_STEPS = 300
 
 ENV_OPTIONS = ("seed", "pool_size", "max_shape", "view_radius", "observe_map", "observe_window", "max_steps")
 
-GENERATOR_FIELDS = ("family", "min_shape", "max_items", "min_items", "density", "gap_rate", "shelf_mix",
+GENERATOR_FIELDS = ("family", "min_shape", "max_items", "min_items", "density", "gap_rate", "aisle", "shelf_mix",
                     "items_on_pick_faces", "min_reach", "max_attempts")
 
 
@@ -38,9 +38,11 @@ def make_params(env: ProceduralWarehouse, pool: LayoutPool, *, max_steps: int = 
     if int(max_steps) < 1:
         raise ValueError(f"max_steps must be a positive integer, got {max_steps}")
     values = {**REWARD_DEFAULTS, **rewards}
+    walls, reset_obs = pool_arrays(env, pool)
     return ProceduralParams(
         pool=pool,
-        reset_obs=_reset_observations(env, pool),
+        walls=walls,
+        reset_obs=reset_obs,
         max_steps=jnp.asarray(int(max_steps), dtype=jnp.int32),
         **{name: jnp.asarray(value, dtype=jnp.float32) for name, value in values.items()},
     )
@@ -55,7 +57,7 @@ def make_procedural(*, seed: int = 0, pool_size: int = 1024, max_shape: tuple[in
     ``max_items``, ``density``, ...), ``max_steps`` and SPEC.md's reward constants.
     """
     generator_kwargs = {name: overrides.pop(name) for name in GENERATOR_FIELDS if name in overrides}
-    for name in ("min_shape", "density", "gap_rate"):
+    for name in ("min_shape", "density", "gap_rate", "aisle"):
         if name in generator_kwargs:
             generator_kwargs[name] = tuple(generator_kwargs[name])
     unknown = sorted(set(overrides) - set(REWARD_DEFAULTS))

@@ -1,0 +1,111 @@
+"""``python -m wrl_jax.evaluate --layout`` on layout files the test writes (ASCII and MovingAI): per file and
+overall statistics of every seed's greedy policy, and clear refusals of layouts the run cannot observe, of bad
+files and of runs of other environments.
+
+The run is a checkpoint of an untrained 2-seed PPO written as training writes it (training a procedural run,
+even a tiny one, costs about a minute of compilation on two cores; the evaluation does not care how good the
+policy is). The final generalization report of a training run is tested in tests/test_procedural.py.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from wrl_jax import cli, maps, training
+from wrl_jax.agents import get_spec, ppo
+from wrl_jax.cli.options import EnvOptions, build, config_to_dict
+from wrl_jax.layout import optimal_route_lengths, parse
+from wrl_jax.training import checkpoint
+
+REPO = Path(__file__).resolve().parent.parent
+SMALL_ASCII = "S . . #\n. # 0 .\n. . . G\n. . # .\n"
+MOVINGAI = "type octile\nheight 6\nwidth 9\nmap\n.........\n.@@@.@@@.\n.........\n.@@@.@@@.\n.........\nTT.......\n"
+
+
+@pytest.fixture(scope="module")
+def procedural_run(tmp_path_factory):
+    """A run directory holding the checkpoint of an untrained PPO on Procedural-Warehouse-v0, seeds 3 and 4."""
+    spec = get_spec("ppo")
+    config = dataclasses.replace(ppo.PROCEDURAL, hidden_sizes=(16,), num_envs=8, num_steps=16, num_minibatches=2,
+                                 update_epochs=1, total_timesteps=256)
+    algo = build(spec, config, EnvOptions(env="Procedural-Warehouse-v0"))
+    trainer = training.Trainer(algo, [3, 4], training.LoopConfig(progress=False))
+    out = tmp_path_factory.mktemp("procedural-run")
+    checkpoint.save(out, trainer.host_state(trainer.init()), {
+        "algo": "ppo", "env": "Procedural-Warehouse-v0", "env_overrides": {}, "preset": "procedural",
+        "config": config_to_dict(config), "seeds": [3, 4], "num_updates": trainer.num_updates,
+        "steps_per_update": trainer.steps_per_update, "updates_done": 0, "env_steps_done": 0,
+        "train_seconds": 0.0,
+    })
+    return out
+
+
+@pytest.fixture
+def layout_files(tmp_path):
+    files = {"study": tmp_path / "study8.txt", "small": tmp_path / "small.txt", "movingai": tmp_path / "shelves.map"}
+    files["study"].write_text(maps.WAREHOUSE_8X8)
+    files["small"].write_text(SMALL_ASCII)
+    files["movingai"].write_text(MOVINGAI)
+    return files
+
+
+def test_evaluate_on_layout_files(procedural_run, layout_files, tmp_path, capsys):
+    out = tmp_path / "layouts.json"
+    paths = [str(layout_files[name]) for name in ("study", "small", "movingai")]
+    argv = ["--run", str(procedural_run), "--json", str(out)]
+    for path in paths:
+        argv += ["--layout", path]
+    assert cli.evaluate_main(argv) == 0
+    printed = capsys.readouterr().out
+    result = json.loads(out.read_text())
+    assert list(result["layouts"]) == paths and result["seeds"] == [3, 4]
+    study, small, movingai = (result["layouts"][path] for path in paths)
+    # Every item of every file, for each of the 2 seeds; the yardstick is the NumPy BFS of wrl_jax.layout.
+    assert study["episodes"] == 2 * 10 and study["bfs_optimum"] == 14.0
+    assert small["episodes"] == 2 * 1
+    assert small["bfs_optimum"] == float(optimal_route_lengths(parse(SMALL_ASCII))[0])
+    assert movingai["episodes"] == 2 * 8 and movingai["description"].startswith("MovingAI map, 6x9")
+    assert result["overall"]["episodes"] == study["episodes"] + small["episodes"] + movingai["episodes"]
+    for row in (study, small, movingai, result["overall"]):
+        assert 0.0 <= row["delivery_rate"] <= 1.0 and row["collisions_per_episode"] >= 0
+        assert row["mean_steps"] is None or row["mean_steps"] >= row["mean_optimal"]
+        assert sum(entry["episodes"] for entry in row["per_seed"]) == row["episodes"]
+    delivered = np.mean([entry["delivery_rate"] for entry in result["overall"]["per_seed"]])
+    assert result["overall"]["delivery_rate"] == pytest.approx(delivered)
+    assert f"| {paths[1]} | 1 | 1 |" in printed and "| overall |" in printed
+
+
+def test_evaluate_refuses_a_layout_larger_than_the_runs_observation(procedural_run, layout_files, tmp_path, capsys):
+    big = tmp_path / "big.map"
+    big.write_text("type octile\nheight 17\nwidth 4\nmap\n" + "....\n" * 17)
+    argv = ["--run", str(procedural_run), "--layout", str(layout_files["small"]), "--layout", str(big)]
+    assert cli.evaluate_main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"{big} is 17x4, larger than max_shape 16x16" in err and "observation covers floors of at most 16x16" in err
+    missing = tmp_path / "nowhere.txt"
+    assert cli.evaluate_main(["--run", str(procedural_run), "--layout", str(missing)]) == 2
+    assert f"--layout {missing}: no such file" in capsys.readouterr().err
+    broken = tmp_path / "broken.txt"
+    broken.write_text("S . ?\n. . G\n0 . .\n")
+    assert cli.evaluate_main(["--run", str(procedural_run), "--layout", str(broken)]) == 2
+    assert f"{broken}: unknown character '?'" in capsys.readouterr().err
+
+
+def test_evaluate_refuses_layouts_for_a_run_of_another_environment(tmp_path, layout_files):
+    run = tmp_path / "fleet-run"
+    checkpoint.save(run, {"x": np.zeros(1, np.float32)},
+                    {"algo": "ppo", "env": "Fleet-12x12-v0", "config": {}, "seeds": [0], "updates_done": 0})
+    done = subprocess.run(
+        [sys.executable, "-m", "wrl_jax.evaluate", "--run", str(run), "--layout", str(layout_files["small"])],
+        cwd=REPO, capture_output=True, text=True, timeout=120, check=False,
+    )  # fmt: skip
+    assert done.returncode == 2
+    assert "needs a run of a single-robot layout environment" in done.stderr
+    assert "Fleet-12x12-v0 (family 'fleet')" in done.stderr
