@@ -28,7 +28,9 @@ Metric aggregation over a log group of ``log_every`` updates: episode sums
 (``episodes``, ``delivered``, ``return_sum``, ``length_sum`` and any key ending in
 ``_sum``) are added, ``eval_*`` keys take the group's last evaluation, and every
 other metric is averaged. Derived per row: ``mean_return``, ``delivery_rate``
-and ``mean_length`` of the training episodes that ended in the group.
+and ``mean_length`` of the training episodes that ended in the group, and for
+a multi-agent environment ``train_throughput`` (its agents' deliveries per
+environment step, from ``deliveries_sum``).
 
 Why one module of this length: ``make_train``, :class:`Trainer` and :func:`run`
 are one loop in three shapes that must stay bit-identical (tested), and they
@@ -306,6 +308,9 @@ class Trainer:
                 row["mean_return"] = row.get("return_sum", math.nan) / episodes if episodes else math.nan
                 row["delivery_rate"] = row.get("delivered", math.nan) / episodes if episodes else math.nan
                 row["mean_length"] = row.get("length_sum", math.nan) / episodes if episodes else math.nan
+                if "deliveries_sum" in row:  # multi-agent: deliveries of all agents per environment step
+                    group_steps = len(next(iter(group.values()))) * self.steps_per_update
+                    row["train_throughput"] = row["deliveries_sum"] / group_steps
                 rows.append(row)
         return rows
 
@@ -554,7 +559,8 @@ def _describe(rows: list[dict[str, Any]], progress_metric: tuple[str, str]) -> s
     if episodes:
         ret = sum(row.get("return_sum", 0.0) for row in rows) / episodes
         text = f"return {ret:+.1f}"
-        if any("delivered" in row for row in rows):
+        # A fleet's shifts never terminate: its deliveries are counted per robot (deliveries_sum), not per episode.
+        if any("delivered" in row for row in rows) and not any("deliveries_sum" in row for row in rows):
             delivered = sum(row.get("delivered", 0.0) for row in rows) / episodes
             text += f" | delivered {100 * delivered:.0f}%"
     key, label = progress_metric
