@@ -27,6 +27,10 @@ Two evaluations use it:
 
 :func:`evaluate_layouts` runs the same measurement on any given layouts (the
 ``--layout`` files of ``python -m wrl_jax.evaluate``).
+
+Why one module of this length: the periodic, final and file evaluations are one
+measurement (the same episode, rates and tables) on three sets of layouts, and
+read best beside the sets they run on.
 """
 
 from __future__ import annotations
