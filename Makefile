@@ -26,7 +26,7 @@ run: install
 	$(PY) train_ppo.py $(ARGS)
 
 test: install-test
-	$(PY) -m pytest -n 2 $(PYTEST_ARGS)
+	$(PY) -m pytest -n 2 --dist loadscope --no-loadscope-reorder $(PYTEST_ARGS)
 
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis

@@ -233,9 +233,13 @@ def test_tensorboard_events_match_the_metric_rows_across_a_resume(algo, referenc
     # Curves written past the checkpoint by a run that then crashed must disappear on resume.
     from tensorboardX import SummaryWriter
 
-    # (its own file name: event files are named by the second they were opened in)
-    with SummaryWriter(str(tmp_path / metrics_io.TENSORBOARD_DIR / f"seed_{SEEDS[0]}"), filename_suffix=".stray") as stray:
+    seed_dir = tmp_path / metrics_io.TENSORBOARD_DIR / f"seed_{SEEDS[0]}"
+    with SummaryWriter(str(seed_dir), filename_suffix=".stray") as stray:
         stray.add_scalar("mean_return", 12345.0, global_step=10**6)
+    # Event files are named by the second they were opened in and read in name order: date the stray
+    # file before the resume's (a resume within the same second would otherwise sort after it).
+    (stray_file,) = seed_dir.glob("*.stray")
+    stray_file.rename(seed_dir / "events.out.tfevents.0000000001.stray")
     training.run(trainer, tmp_path, resume=True)
     for seed in SEEDS:
         shown = _tensorboard_scalars(tmp_path, seed)
