@@ -202,3 +202,77 @@ def test_command_line_errors_exit_with_status_2(capsys):
     assert "unknown algorithm" in capsys.readouterr().err
     assert sw.main(["--algo", "dqn", "--grid", "learning_rate=0.1", "--devices", "64"]) == 2
     assert "devices=64" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------- other families
+FLEET = "Fleet-12x12-v0"
+FLEET_OVERRIDES = {"num_robots": 2, "max_steps": 16}
+"""Two robots, 16-step shifts: the periodic evaluation (the greedy fleet and PIBT on 32 shifts) stays cheap."""
+TINY_FLEET_PPO = PPOConfig(
+    num_envs=4, num_steps=8, num_minibatches=2, update_epochs=1, hidden_sizes=(16,), total_timesteps=4 * 8 * 2
+)
+FLEET_LOOP = training.LoopConfig(eval_every=0, progress=False)  # evaluated once, after the last update
+
+
+def test_fleet_sweep_trains_each_point_with_its_block_penalty(tmp_path):
+    sweep = sw.Sweep("ppo", TINY_FLEET_PPO, FLEET, FLEET_OVERRIDES, {"block_penalty": [-1.0, -5.0]}, seeds=[0, 1])
+    assert sweep.env_fields == ["block_penalty"]
+    with pytest.raises(sw.StaticFieldError, match="'num_robots' is static"):
+        sw.Sweep("ppo", TINY_FLEET_PPO, FLEET, FLEET_OVERRIDES, {"num_robots": [2, 3]}, seeds=[0])
+    result = sw.run_sweep(sweep, FLEET_LOOP)
+    assert np.asarray(result.run.runners.env_params.block_penalty).tolist() == [-1.0, -1.0, -5.0, -5.0]
+    # The penalty is what trains differently: the same seeds at the two points end with other parameters.
+    # (That a point is bit for bit its run alone is the warehouse sweep tests' check: one code path.)
+    assert not all(np.array_equal(a, b) for a, b in zip(element_leaves(result.run.runners.params, slice(0, 2)),
+                                                         element_leaves(result.run.runners.params, slice(2, 4))))
+    # The fleet's columns, from its evaluation summary and its multi-agent training rows.
+    sw.write_outputs(result, tmp_path, plot=False)
+    header = (tmp_path / "results.md").read_text().splitlines()[2]
+    for label in ("greedy throughput", "greedy / PIBT", "seeds >= PIBT", "blocks /robot /100 steps",
+                  "train throughput (last log)", "first step >= PIBT"):
+        assert f"| {label} |" in header
+    assert "greedy success" not in header
+    seeds = [r for r in result.per_seed if r["point"] == 1]
+    assert {"throughput", "vs_pibt", "blocks_per_100", "at_least_pibt", "train_throughput"} <= set(seeds[0])
+    assert result.per_point[1]["throughput"] == pytest.approx(np.mean([r["throughput"] for r in seeds]))
+    assert result.per_point[1]["at_least_pibt_seeds"] == sum(r["at_least_pibt"] for r in seeds)
+
+
+def test_procedural_fields_are_judged_by_its_params():
+    """Reward constants of the procedural warehouse are params leaves (traced); its pool size fixes shapes."""
+    env, config = "Procedural-Warehouse-v0", dataclasses.replace(TINY_PPO, obs_encoding="raw")
+    with pytest.raises(sw.StaticFieldError, match="'pool_size' is static"):
+        sw.Sweep("ppo", config, env, {}, {"pool_size": [1024, 512]}, seeds=[0])
+    sweep = sw.Sweep("ppo", config, env, {}, {"shaping_coef": [0.0, 1.0], "step_penalty": [-1.0]}, seeds=[0, 1])
+    assert sweep.env_fields == ["shaping_coef", "step_penalty"]
+    _, params = sweep.batched_inputs()
+    assert np.asarray(params.shaping_coef).tolist() == [0.0, 0.0, 1.0, 1.0]
+    assert np.asarray(params.step_penalty).tolist() == [-1.0] * 4
+    with pytest.raises(ValueError, match="unknown sweep field 'pool_sise'"):
+        sw.Sweep("ppo", config, env, {}, {"pool_sise": [8]}, seeds=[0])
+
+
+def test_a_family_without_sweep_columns_gets_its_numbers_and_none_for_missing_training_metrics():
+    columns = sw.default_columns([{"seed": 0, "throughput": 0.5, "solved": 1.0, "name": "x"}])
+    assert [(m.key, m.kind) for m in columns.metrics] == [("throughput", "number"), ("solved", "solved")]
+    assert sw.training_values(columns, {"update": 1}) == {
+        "train_delivery_rate": None, "train_mean_return": None}
+
+
+def test_the_documented_fleet_command_parses():
+    import shlex
+    from pathlib import Path
+
+    from wrl_jax.cli.sweep import FLEET_EXAMPLE
+
+    docs = (Path(__file__).resolve().parents[1] / "docs" / "scale.md").read_text()
+    assert FLEET_EXAMPLE in docs
+    args = sw.build_parser().parse_args(shlex.split(FLEET_EXAMPLE)[3:])
+    assert (args.algo, args.env, args.num_seeds) == ("ppo", FLEET, 4)
+    config, env = sw.parse_sets(args.set, PPOConfig, args.env)
+    assert config == {} and env == {"num_robots": 2} and isinstance(env["num_robots"], int)
+    grid = sw.parse_grid(args.grid, PPOConfig, args.env)
+    assert grid == {"block_penalty": [-1.0, -5.0], "ent_coef": [0.05, 0.2]}
+    assert all(isinstance(v, float) for v in grid["block_penalty"])
+    with pytest.raises(ValueError, match="unknown field 'num_robot'"):
+        sw.parse_sets(["num_robot=2"], PPOConfig, FLEET)

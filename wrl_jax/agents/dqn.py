@@ -490,6 +490,8 @@ class DQN(Algorithm[DQNRunner]):
     def update(self, runner: DQNRunner, update_index: jax.Array) -> tuple[DQNRunner, Metrics]:
         config = self.config
         update_index = jnp.asarray(update_index, jnp.int32)
+        if self.env.refreshes_params:  # e.g. the procedural warehouse renews part of its layout pool
+            runner = runner.replace(env_params=self.env.params_for_update(runner.env_params, update_index))
         first_step = update_index * config.steps_per_update
         timesteps = first_step + config.num_envs * jnp.arange(config.train_freq, dtype=jnp.int32)
         runner, (sums, collisions) = jax.lax.scan(self._env_step, runner, timesteps)

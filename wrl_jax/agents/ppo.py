@@ -319,6 +319,8 @@ class PPO(Algorithm[PPORunner]):
 
     # ---------------------------------------------------------------- update
     def update(self, runner: PPORunner, update_index: jax.Array) -> tuple[PPORunner, dict[str, jax.Array]]:
+        if self.env.refreshes_params:  # e.g. the procedural warehouse renews part of its layout pool
+            runner = runner.replace(env_params=self.env.params_for_update(runner.env_params, update_index))
         cfg, hyper = self.config, runner.hyper
         networks = self.unflatten(runner.params)
         # Every random number of the update comes from four draws made here, not

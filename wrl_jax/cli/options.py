@@ -46,9 +46,13 @@ class EnvOptions:
     block_penalty: float | None = None
     """fleet environments: reward for a blocked move"""
     view_radius: int | None = None
-    """fleet environments: radius V of each robot's egocentric window"""
+    """fleet and procedural environments: radius V of each robot's egocentric window"""
     shaping: str | None = None
     """fleet environments: distance of the shaping term, bfs or manhattan"""
+    pool_size: int | None = None
+    """procedural environments: layouts in the pool episodes reset from"""
+    pool_refresh: int | None = None
+    """procedural environments: pool slots renewed with fresh layouts before every update (0: never)"""
 
     def overrides(self) -> dict[str, Any]:
         """Keyword overrides for ``wrl_jax.make``: only what differs from the registered environment."""
@@ -203,6 +207,17 @@ def parse(algo: str, argv: list[str] | None = None) -> Command:
     return command
 
 
+FAMILY_OPTIONS = {
+    "num_robots": ("fleet",),
+    "block_penalty": ("fleet",),
+    "view_radius": ("fleet", "procedural"),
+    "shaping": ("fleet",),
+    "pool_size": ("procedural",),
+    "pool_refresh": ("procedural",),
+}
+"""Environment flags that only some families take (refused on the others before anything is built)."""
+
+
 def validate(command: Command) -> None:
     """Raise ``ValueError`` for anything wrong with a command, before anything is compiled."""
     from wrl_jax.core import registry
@@ -211,11 +226,12 @@ def validate(command: Command) -> None:
     if run.preset not in spec.presets:
         raise ValueError(f"unknown {spec.name} preset {run.preset!r}; choose from {sorted(spec.presets)}")
     family = registry.entry(command.env.env).family  # unknown environment -> ValueError
-    fleet_only = [name for name in ("num_robots", "block_penalty", "view_radius", "shaping")
-                  if getattr(command.env, name) is not None]
-    if fleet_only and family != "fleet":
-        flags = ", ".join("--" + name.replace("_", "-") for name in fleet_only)
-        raise ValueError(f"{flags}: fleet options, but --env {command.env.env} is a {family!r} environment")
+    misplaced = [name for name, families in FAMILY_OPTIONS.items()
+                 if getattr(command.env, name) is not None and family not in families]
+    if misplaced:
+        flags = ", ".join("--" + name.replace("_", "-") for name in misplaced)
+        kinds = " or ".join(sorted({kind for name in misplaced for kind in FAMILY_OPTIONS[name]}))
+        raise ValueError(f"{flags}: {kinds} options, but --env {command.env.env} is a {family!r} environment")
     if run.num_seeds < 1:
         raise ValueError(f"--num-seeds must be at least 1, got {run.num_seeds}")
     if run.seed < 0:

@@ -78,7 +78,8 @@ def train(command: Command) -> dict[str, Any]:
     episodes = training.final_evaluation(trainer, result)
     family = trainer.evaluation
     eval_summary = family.summarize(episodes, trainer.seeds)
-    eval_summary.update(family_evaluation.run_final_report(family, trainer, result.runners, out))
+    eval_summary.update(family_evaluation.run_final_report(family, trainer, result.runners, out,
+                                                           updates_done=result.updates_done))
     eval_seconds = time.perf_counter() - t0
     first = result.convergence.first_optimal_update(len(trainer.seeds))
     stable = result.convergence.stable_optimal_update(len(trainer.seeds))

@@ -184,6 +184,20 @@ class Environment(gymnax_environment.Environment, Generic[StateT, ParamsT]):
         """
         return None
 
+    refreshes_params: bool = False
+    """Whether :meth:`params_for_update` changes the params (a learner then calls it before every update)."""
+
+    def params_for_update(self, params: ParamsT, update_index: jax.Array) -> ParamsT:
+        """The params an update collects its experience with, from the previous update's (traced, in ``jit``).
+
+        Identity by default. A family whose params hold something a learner should
+        renew while it trains (the procedural warehouse's layout pool) overrides it
+        with a deterministic function of ``update_index``, so a run repeats bit for bit
+        and a resumed run continues exactly. It runs once per update, not per step:
+        generation belongs here, never in ``reset_env``.
+        """
+        return params
+
     def reset_env(self, key: jax.Array, params: ParamsT) -> tuple[Any, StateT]:
         raise NotImplementedError
 

@@ -22,6 +22,68 @@ from wrl_jax.core import registry
 GreedyFn = Callable[[Any, jax.Array], jax.Array]
 """``greedy_action(network_params, obs) -> action`` for one observation."""
 
+METRIC_KINDS = ("percent", "ratio", "number", "solved")
+"""How a :class:`SweepMetric` is shown: ``percent`` a rate in [0, 1] (shown in %, plotted on
+0-100 %), ``ratio`` a ratio shown in % but unbounded (e.g. throughput over PIBT's), ``number``
+a plain number, ``solved`` the family's solved criterion (:attr:`FamilyEvaluation.solved_key`)
+at the final evaluation: a flag per seed, counted per point."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepMetric:
+    """One column of a sweep's results (``python -m wrl_jax.sweep``).
+
+    Attributes:
+        key: the key in the family's per-seed summary rows (see :class:`SweepColumns`),
+            or in the training metric rows for :attr:`SweepColumns.train`; for kind
+            ``solved``, the name of the per-seed flag in the sweep's outputs.
+        label: the column title in ``results.md``.
+        kind: one of :data:`METRIC_KINDS`.
+        digits: decimals shown in ``results.md``.
+        table: shown in ``results.md`` (otherwise only in the CSV and JSON files).
+        plot: the y-axis label of a panel of ``sweep.png`` (``None``: no panel).
+        aggregate: averaged per point (mean and 95 % interval over seeds) in ``results.json``.
+    """
+
+    key: str
+    label: str
+    kind: str = "number"
+    digits: int = 1
+    table: bool = True
+    plot: str | None = None
+    aggregate: bool = True
+
+    def __post_init__(self) -> None:
+        if self.kind not in METRIC_KINDS:
+            raise ValueError(f"SweepMetric {self.key!r}: kind must be one of {METRIC_KINDS}, got {self.kind!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepColumns:
+    """What a sweep reports for one family: its headline metrics, in table order.
+
+    A sweep evaluates every point's seeds with :attr:`FamilyEvaluation.summarize`
+    and reads one row of numbers per seed from it; this says where those rows
+    are and which of their keys are worth a column, so the sweep itself knows no
+    family's metrics.
+
+    Attributes:
+        metrics: per-seed metrics of the final greedy evaluation (table order).
+        train: metrics of each seed's last training log row (``delivery_rate``,
+            ``train_throughput``...); a missing key is ``None``.
+        rows: the path of keys in ``summarize``'s result to its list of per-seed rows.
+        convergence_label: the title of the convergence column (the first step at
+            which the periodic evaluation met the solved criterion).
+        convergence_note: what that column means, under the table (default:
+            :attr:`FamilyEvaluation.solved_definition`).
+    """
+
+    metrics: tuple[SweepMetric, ...]
+    train: tuple[SweepMetric, ...] = ()
+    rows: tuple[str, ...] = ("per_seed",)
+    convergence_label: str = "first solved step"
+    convergence_note: str | None = None
+
 
 @dataclasses.dataclass(frozen=True)
 class FamilyEvaluation:
@@ -47,6 +109,9 @@ class FamilyEvaluation:
             sets, planners beside the policy, the sampled policy, media). Its
             result is merged into ``summary.json``'s ``eval`` before
             ``format_report`` and ``format_details`` see the summary.
+        sweep_columns: optional :class:`SweepColumns`: the columns of a sweep's
+            results (``python -m wrl_jax.sweep``); ``None``: every number of the
+            per-seed rows of ``summarize``, in their order.
     """
 
     evaluate_policy: Callable[..., Any]
@@ -58,6 +123,7 @@ class FamilyEvaluation:
     format_details: Callable[[dict[str, Any]], str]
     progress_metric: tuple[str, str] = ("eval_success_rate", "eval success")
     final_report: Callable[["FinalContext"], dict[str, Any]] | None = None
+    sweep_columns: SweepColumns | None = None
 
     def evaluate_seeds(
         self, greedy_action: GreedyFn, network_params: Any, env: Any, params: Any, params_batched: bool = False
@@ -85,6 +151,8 @@ class FinalContext:
             constants are not re-evaluated here).
         seeds: the seed values, in the order of ``network_params``.
         out_dir: the run directory (for media), or ``None``.
+        updates_done: the updates trained (what an environment whose params change
+            between updates needs to list what training saw), or ``None`` if unknown.
     """
 
     algo: Any
@@ -93,16 +161,18 @@ class FinalContext:
     params: Any
     seeds: Sequence[int]
     out_dir: Any = None
+    updates_done: int | None = None
 
 
-def run_final_report(evaluation: FamilyEvaluation, trainer: Any, runners: Any, out_dir: Any = None) -> dict[str, Any]:
+def run_final_report(evaluation: FamilyEvaluation, trainer: Any, runners: Any, out_dir: Any = None,
+                     updates_done: int | None = None) -> dict[str, Any]:
     """``evaluation.final_report`` of a trainer's runners (``{}`` when the family has none)."""
     if evaluation.final_report is None:
         return {}
     network_params = jax.vmap(trainer.algo.network_params)(runners)
     params = jax.tree.map(lambda x: x[0], runners.env_params)
     context = FinalContext(algo=trainer.algo, network_params=network_params, env=trainer.algo.env, params=params,
-                           seeds=list(trainer.seeds), out_dir=out_dir)
+                           seeds=list(trainer.seeds), out_dir=out_dir, updates_done=updates_done)
     return evaluation.final_report(context)
 
 

@@ -1,8 +1,9 @@
 """Hyperparameter sweeps as one compiled program: ``python -m wrl_jax.sweep``.
 
-A sweep is a grid of values of *traced* fields times a list of seeds. Traced
-fields are the ones an algorithm keeps in its runner state as arrays, so
-``vmap`` can give every batch element its own value:
+A sweep is a grid of values of *traced* fields times a list of seeds, on any
+registered environment (the single-robot warehouse, the procedural warehouse,
+the multi-robot fleet). Traced fields are the ones an algorithm keeps in its
+runner state as arrays, so ``vmap`` can give every batch element its own value:
 
 - the algorithm's traced hyperparameters (``runner.hyper``): for PPO
   ``learning_rate``, ``ent_coef``, ``gamma``, ``gae_lambda``, ``clip_eps``,
@@ -10,9 +11,12 @@ fields are the ones an algorithm keeps in its runner state as arrays, so
   the epsilon schedule (``exploration_initial_eps``, ``exploration_final_eps``,
   ``exploration_fraction``), ``gamma``, ``tau``, ``max_grad_norm``,
   ``huber_delta``, ``reward_scale``;
-- the environment's reward constants and episode limit (``runner.env_params``):
-  ``shaping_coef``, ``step_penalty``, ``obstacle_penalty``, ``wall_penalty``,
-  ``pickup_reward``, ``delivery_reward``, ``max_steps``.
+- the environment's scalar params (``runner.env_params``): any option of
+  ``wrl_jax.make`` stored as a 0-d array in the environment's params, e.g. the
+  reward constants (``shaping_coef``, ``step_penalty``...) and ``max_steps`` of
+  every family, the fleet's ``block_penalty``, the warehouse's
+  ``collision_bug``. No list of them lives here: a new family's params are
+  sweepable as they are.
 
 The grid's points x seeds become one batch (point-major: element
 ``g * num_seeds + s`` is point ``g``, seed ``s``), trained by the shared driver
@@ -21,9 +25,30 @@ seeds. Seed ``s`` gets ``PRNGKey(s)`` at every point, so points differ only by
 their values (common random numbers: a fairer comparison of points).
 
 Static fields (network width, number of environments, rollout length,
-``total_timesteps``...) fix array shapes or the program's structure; a sweep over
-them is one program per value. The sweep refuses them with an error saying so;
-set them for the whole sweep with ``--set FIELD=VALUE`` and run one sweep per value.
+``total_timesteps``; environment options that fix shapes or live on the
+environment object: the fleet's ``num_robots``, ``view_radius`` and
+``shaping``, the procedural ``pool_size``, the warehouse's
+``observe_carrying``...) fix array shapes or the program's structure; a sweep
+over them is one program per value. The sweep refuses them with an error saying
+so; set them for the whole sweep with ``--set FIELD=VALUE`` and run one sweep
+per value. (The fleet's periodic evaluation runs shifts of the base
+environment's ``max_steps``, a scan length, at every point: a grid over the
+fleet's ``max_steps`` changes training episodes, not the evaluation's.)
+
+Results come from the family's evaluation hook
+(:class:`~wrl_jax.training.evaluation.FamilyEvaluation`): its
+``sweep_columns`` name the headline metrics of its per-seed summary (the
+warehouse: greedy success, optimal items, steps, return; the fleet:
+throughput, ratio to PIBT, blocks per robot per 100 steps; the procedural
+warehouse: held-out delivery, optimal rate, excess steps), so this module
+knows no family's metrics. The convergence columns are generic: the first
+(``first_optimal_step``) and stable (``stable_optimal_step``) step at which
+the periodic evaluation met the family's solved criterion (``solved_key``).
+
+Example (the fleet: a grid over the block penalty, two robots):
+
+    python -m wrl_jax.sweep --algo ppo --env Fleet-12x12-v0 --set num_robots=2 \\
+        --grid block_penalty=-1,-5 --grid ent_coef=0.05,0.2 --num-seeds 4 --out runs/sweep-fleet
 
 Outputs in ``--out``: ``results.md`` (a table: mean and 95 % confidence interval
 over seeds per point), ``results.csv`` (one row per point and seed),
@@ -38,6 +63,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+from collections.abc import Sequence
 from typing import Any
 
 from wrl_jax.stats import mean_half_width
@@ -51,10 +77,13 @@ ENV_FIELDS = (
     "delivery_reward",
     "max_steps",
 )
-"""Environment params a sweep may vary (arrays in ``EnvParams``; ``max_steps`` is an integer)."""
+"""The single-robot warehouse's reward constants and episode limit: traced (0-d arrays of its
+``EnvParams``). Kept for importers; the sweep finds every family's traced fields in its params
+(:func:`traced_env_fields`)."""
 
 STATIC_ENV_OPTIONS = ("observe_carrying", "max_items")
-"""Environment options that change shapes (observation width, item capacity): static."""
+"""The warehouse's options that change shapes (observation width, item capacity): static. Kept
+for importers; the sweep refuses any option of ``wrl_jax.make`` that is not a scalar params leaf."""
 
 
 class StaticFieldError(ValueError):
@@ -70,16 +99,19 @@ def traced_fields(algo: Any) -> tuple[str, ...]:
     return tuple(f.name for f in dataclasses.fields(template.hyper))
 
 
-def hyper_for(algo: Any, config: Any) -> Any:
+def hyper_for(algo: Any, config: Any, template: Any = None) -> Any:
     """The traced hyperparameters of ``config`` in the algorithm's ``hyper`` type (float32 scalars).
 
     Relies on the convention both algorithms follow: every field of the runner's
-    ``hyper`` is a config field of the same name.
+    ``hyper`` is a config field of the same name. ``template``: the runner's
+    ``hyper`` shapes, when the caller has them (tracing ``algo.init`` once per
+    point costs a fleet sweep seconds).
     """
     import jax
     import jax.numpy as jnp
 
-    template = jax.eval_shape(algo.init, jax.random.PRNGKey(0)).hyper
+    if template is None:
+        template = jax.eval_shape(algo.init, jax.random.PRNGKey(0)).hyper
     values = {}
     for f in dataclasses.fields(template):
         value = getattr(config, f.name)
@@ -87,9 +119,34 @@ def hyper_for(algo: Any, config: Any) -> Any:
     return type(template)(**values)
 
 
+def is_traced_env_field(params: Any, name: str) -> bool:
+    """Whether ``name`` is a scalar (0-d array) leaf of an environment's params.
+
+    Such a value can differ along a ``vmap`` axis of one program: the
+    environment reads it from ``params`` at run time. Anything else an
+    environment is built from (robot count, view radius, pool size, observation
+    switches on the environment object) fixes shapes or code.
+    """
+    import jax
+    import numpy as np
+
+    value = getattr(params, name, None)
+    return isinstance(value, (jax.Array, np.ndarray)) and value.ndim == 0
+
+
+def traced_env_fields(params: Any) -> tuple[str, ...]:
+    """The scalar leaves of an environment's params (a dataclass): the candidates of a sweep."""
+    return tuple(f.name for f in dataclasses.fields(params) if is_traced_env_field(params, f.name))
+
+
 def _cli_value(value: Any) -> str:
     """A value as ``--set`` takes it (tuples as ``64,64``)."""
     return ",".join(str(v) for v in value) if isinstance(value, tuple) else str(value)
+
+
+def _python_value(value: Any) -> Any:
+    """A 0-d params leaf as a plain Python number (what ``wrl_jax.make`` takes)."""
+    return value.item() if hasattr(value, "item") else value
 
 
 @dataclasses.dataclass
@@ -99,8 +156,9 @@ class Sweep:
     Args:
         algo_name: ``"ppo"`` or ``"dqn"`` (any name in ``wrl_jax.cli.ALGORITHM_MODULES``).
         config: the base config (a preset, with ``--set`` overrides), static for every point.
-        env_name: registered environment.
-        env_overrides: environment overrides common to every point.
+        env_name: registered environment (any family).
+        env_overrides: environment options common to every point: anything
+            ``wrl_jax.make(env_name, ...)`` accepts (static ones included).
         grid: field -> values; the sweep is their Cartesian product (in the given order).
         seeds: seed values, trained at every point.
     """
@@ -113,10 +171,42 @@ class Sweep:
     seeds: list[int]
 
     def __post_init__(self) -> None:
-        import wrl_jax
         from wrl_jax import cli
 
         self.spec = cli.get_spec(self.algo_name)
+        self._check_seeds_and_grid()
+        self.config.validate()
+        env, base_params = self._make({}, f"environment overrides {self.env_overrides}")
+        self.base_params = base_params
+        self.algo = self.spec.algorithm_cls(self.config, env, base_params)
+        self.algo_fields = traced_fields(self.algo)
+        self.env_fields: list[str] = []
+        for name, values in self.grid.items():
+            if name in self.algo_fields:
+                continue
+            self._check_static_config_field(name, values)
+            self._check_env_field(name, values)
+            self.env_fields.append(name)
+        self.fields = list(self.grid)
+        self.points: list[dict[str, Any]] = [
+            dict(zip(self.fields, combo)) for combo in itertools.product(*(self.grid[f] for f in self.fields))
+        ]
+        # Every point validated exactly as a single run with these values would be.
+        self.point_configs, self.point_params = [], []
+        for point in self.points:
+            algo_values = {k: v for k, v in point.items() if k in self.algo_fields}
+            env_values = {k: v for k, v in point.items() if k in self.env_fields}
+            try:
+                config = dataclasses.replace(self.config, **algo_values)
+                config.validate()
+            except ValueError as exc:
+                raise ValueError(f"sweep point {point}: {exc}") from None
+            _, params = self._make(env_values, f"sweep point {point}")
+            self.point_configs.append(config)
+            self.point_params.append(params)
+
+    # ------------------------------------------------------------ validation
+    def _check_seeds_and_grid(self) -> None:
         self.seeds = [int(s) for s in self.seeds]
         if not self.seeds:
             raise ValueError("a sweep needs at least one seed")
@@ -126,56 +216,68 @@ class Sweep:
             raise ValueError(f"seeds must be >= 0, got {self.seeds}")
         if not self.grid:
             raise ValueError("the grid is empty: give at least one FIELD=V1,V2,... (e.g. learning_rate=0.003,0.01)")
-        for key in self.env_overrides:
-            if key in STATIC_ENV_OPTIONS or key == "collision_bug":
-                continue
-            if key not in ENV_FIELDS:
-                raise ValueError(f"unknown environment override {key!r}; known: {list(ENV_FIELDS)}")
-        self.config.validate()
-        env, base_params = wrl_jax.make(self.env_name, **self.env_overrides)
-        self.algo = self.spec.algorithm_cls(self.config, env, base_params)
-        self.algo_fields = traced_fields(self.algo)
-        config_fields = {f.name for f in dataclasses.fields(self.config)}
         for name, values in self.grid.items():
-            if name in STATIC_ENV_OPTIONS:
-                raise StaticFieldError(
-                    f"environment option {name!r} is static (it fixes the observation width or the item "
-                    "capacity): one compiled program per value; run one sweep per value"
-                )
-            if name not in self.algo_fields and name not in ENV_FIELDS:
-                if name in config_fields:
-                    raise StaticFieldError(
-                        f"{self.spec.name} field {name!r} is static (it fixes array shapes or the program's "
-                        f"structure), so it cannot be a vmap axis of one program: run one sweep per value, "
-                        f"e.g. --set {name}={_cli_value(values[0])}. Traced fields that can be swept: "
-                        f"{list(self.algo_fields) + list(ENV_FIELDS)}"
-                    )
-                raise ValueError(
-                    f"unknown sweep field {name!r}; traced fields of {self.spec.name}: "
-                    f"{list(self.algo_fields)}; environment: {list(ENV_FIELDS)}"
-                )
             if not values:
                 raise ValueError(f"sweep field {name!r} has no value")
             if len(set(values)) != len(values):
                 raise ValueError(f"sweep field {name!r} repeats a value: {values}")
-        self.fields = list(self.grid)
-        self.points: list[dict[str, Any]] = [
-            dict(zip(self.fields, combo)) for combo in itertools.product(*(self.grid[f] for f in self.fields))
-        ]
-        # Every point validated exactly as a single run with these values would be.
-        self.point_configs, self.point_params = [], []
-        for point in self.points:
-            algo_values = {k: v for k, v in point.items() if k in self.algo_fields}
-            env_values = {k: v for k, v in point.items() if k in ENV_FIELDS}
-            try:
-                config = dataclasses.replace(self.config, **algo_values)
-                config.validate()
-                _, params = wrl_jax.make(self.env_name, **{**self.env_overrides, **env_values})
-            except ValueError as exc:
-                raise ValueError(f"sweep point {point}: {exc}") from None
-            self.point_configs.append(config)
-            self.point_params.append(params)
 
+    def _make(self, values: dict[str, Any], context: str) -> tuple[Any, Any]:
+        """``wrl_jax.make`` with the common overrides and ``values``; its ``ValueError`` prefixed by ``context``."""
+        import wrl_jax
+
+        try:
+            return wrl_jax.make(self.env_name, **{**self.env_overrides, **values})
+        except ValueError as exc:
+            raise ValueError(f"{context} on {self.env_name}: {exc}") from None
+
+    def _sweepable(self) -> list[str]:
+        """Every traced field: the algorithm's and the environment's that ``make`` accepts (for messages)."""
+        import wrl_jax
+
+        accepted = []
+        for name in traced_env_fields(self.base_params):
+            try:
+                wrl_jax.make(self.env_name, **{**self.env_overrides,
+                                               name: _python_value(getattr(self.base_params, name))})
+            except (ValueError, TypeError):
+                continue
+            accepted.append(name)
+        return list(self.algo_fields) + accepted
+
+    def _check_static_config_field(self, name: str, values: list[Any]) -> None:
+        """A config field that is not in the runner's ``hyper`` is static: refuse it."""
+        if name in {f.name for f in dataclasses.fields(self.config)}:
+            raise StaticFieldError(
+                f"{self.spec.name} field {name!r} is static (it fixes array shapes or the program's "
+                f"structure), so it cannot be a vmap axis of one program: run one sweep per value, "
+                f"e.g. --set {name}={_cli_value(values[0])}. Traced fields that can be swept: {self._sweepable()}"
+            )
+
+    def _check_env_field(self, name: str, values: list[Any]) -> None:
+        """An environment field is traced iff it is a scalar params leaf; else static, or unknown to ``make``.
+
+        A params leaf's values are checked point by point (with the message a
+        single run would give); any other name is tried once with ``make``.
+        """
+        import wrl_jax
+
+        if is_traced_env_field(self.base_params, name):
+            return
+        try:
+            wrl_jax.make(self.env_name, **{**self.env_overrides, name: values[0]})
+        except (ValueError, TypeError) as exc:
+            raise ValueError(
+                f"unknown sweep field {name!r}: not a traced field of {self.spec.name} {list(self.algo_fields)}, "
+                f"and {self.env_name} does not take it ({exc}). Traced fields that can be swept: {self._sweepable()}"
+            ) from None
+        raise StaticFieldError(
+            f"environment option {name!r} is static on {self.env_name} (it fixes array shapes or lives on the "
+            f"environment object, not in its params): one compiled program per value; run one sweep per value, "
+            f"e.g. --set {name}={_cli_value(values[0])}. Traced fields that can be swept: {self._sweepable()}"
+        )
+
+    # ------------------------------------------------------------- batching
     @property
     def batch_seeds(self) -> list[int]:
         """The seed of every batch element (point-major)."""
@@ -190,7 +292,9 @@ class Sweep:
         import jax
         import jax.numpy as jnp
 
-        per_element_hyper = [hyper_for(self.algo, c) for c in self.point_configs for _ in self.seeds]
+        template = jax.eval_shape(self.algo.init, jax.random.PRNGKey(0)).hyper
+        per_point_hyper = [hyper_for(self.algo, c, template) for c in self.point_configs]
+        per_element_hyper = [h for h in per_point_hyper for _ in self.seeds]
         per_element_params = [p for p in self.point_params for _ in self.seeds]
         hyper = jax.tree.map(lambda *xs: jnp.stack(xs), *per_element_hyper)
         env_params = jax.tree.map(lambda *xs: jnp.stack(xs), *per_element_params)
@@ -211,10 +315,57 @@ class Sweep:
         }
 
 
+# ------------------------------------------------------------------ columns
+def default_columns(summary_rows: list[dict[str, Any]]) -> Any:
+    """The columns of a family that declares none: every number of its per-seed rows, then "solved".
+
+    A new family's sweep works before anyone chooses its headline metrics.
+    """
+    from wrl_jax.training.evaluation import SweepColumns, SweepMetric
+
+    first = summary_rows[0] if summary_rows else {}
+    keys = [k for k, v in first.items()
+            if k not in ("seed", "solved") and isinstance(v, (int, float)) and not isinstance(v, bool)]
+    metrics = [SweepMetric(k, k.replace("_", " "), plot=k.replace("_", " ") if i < 3 else None)
+               for i, k in enumerate(keys)]
+    return SweepColumns(
+        metrics=(*metrics, SweepMetric("solved", "seeds solved", "solved")),
+        train=(SweepMetric("delivery_rate", "train delivery (last log)", "percent"),
+               SweepMetric("mean_return", "train return (last log)", table=False, aggregate=False)),
+    )
+
+
+def train_column(metric: Any) -> str:
+    """The per-seed column of a training metric: ``train_<key>`` (a key already ``train_...`` kept)."""
+    return metric.key if metric.key.startswith("train_") else f"train_{metric.key}"
+
+
+def _summary_rows(summary: dict[str, Any], path: Sequence[str]) -> list[dict[str, Any]]:
+    """The per-seed rows of a family summary, at ``path`` (``SweepColumns.rows``)."""
+    rows: Any = summary
+    for key in path:
+        rows = rows[key]
+    return rows
+
+
+def _solved_flags(evaluation: Any, episodes: Any) -> list[bool]:
+    """Per seed, the family's solved criterion on the final evaluation (its ``seed_summary[solved_key]``)."""
+    import jax
+    import numpy as np
+
+    flags = jax.vmap(evaluation.seed_summary)(episodes)[evaluation.solved_key]
+    return [bool(x == 1.0) for x in np.asarray(flags)]
+
+
 # ------------------------------------------------------------------ running
 @dataclasses.dataclass
 class SweepResult:
-    """What :func:`run_sweep` returns: the driver's result plus the per-point tables."""
+    """What :func:`run_sweep` returns: the driver's result plus the per-point tables.
+
+    ``columns`` (a :class:`~wrl_jax.training.evaluation.SweepColumns`) names the
+    family's metrics in ``per_seed`` and ``per_point``; ``solved_definition`` is the
+    family's, for the convergence column.
+    """
 
     sweep: Sweep
     run: Any  # training.RunResult
@@ -222,10 +373,8 @@ class SweepResult:
     per_point: list[dict[str, Any]]  # aggregates per point
     metric_rows: list[dict[str, Any]]
     timings: dict[str, float]
-
-
-SUMMARY_METRICS = ("success_rate", "optimal_rate", "mean_steps", "mean_return", "collision_free_rate")
-"""Final greedy-evaluation metrics aggregated per point (mean and 95 % CI over seeds)."""
+    columns: Any = None
+    solved_definition: str = ""
 
 
 def run_sweep(
@@ -251,7 +400,7 @@ def run_sweep(
     hyper, env_params = sweep.batched_inputs()
     batch = train_batch(sweep.algo, seeds, hyper=hyper, env_params=env_params, loop=loop, mesh=mesh)
     trainer, result, episodes = batch.trainer, batch.result, batch.episodes
-    init_seconds, eval_seconds = batch.init_seconds, batch.eval_seconds
+    evaluation = trainer.evaluation
 
     n_seeds = len(sweep.seeds)
     steps = trainer.steps_per_update
@@ -265,49 +414,76 @@ def run_sweep(
         last_train[index] = row
         metric_rows.append({"point": point, **sweep.points[point], **row})
 
+    columns = evaluation.sweep_columns
     per_seed, per_point = [], []
     for g, point in enumerate(sweep.points):
         part = jax.tree.map(lambda x: x[g * n_seeds : (g + 1) * n_seeds], episodes)
-        summary = trainer.evaluation.summarize(part, sweep.seeds)
-        for s, seed_summary in enumerate(summary["per_seed"]):
+        seed_rows = _summary_rows(evaluation.summarize(part, sweep.seeds),
+                                  ("per_seed",) if columns is None else columns.rows)
+        if columns is None:
+            columns = default_columns(seed_rows)
+        solved = _solved_flags(evaluation, part)
+        rows = []
+        for s, seed_row in enumerate(seed_rows):
             index = g * n_seeds + s
-            train_row = last_train.get(index, {})
-            per_seed.append(
-                {
-                    "point": g,
-                    **point,
-                    "seed": sweep.seeds[s],
-                    **{k: seed_summary[k] for k in SUMMARY_METRICS},
-                    "all_optimal": seed_summary["optimal_rate"] == 1.0,
-                    "first_optimal_step": None if first[index] is None else first[index] * steps,
-                    "stable_optimal_step": None if stable[index] is None else stable[index] * steps,
-                    "train_delivery_rate": _finite(train_row.get("delivery_rate")),
-                    "train_mean_return": _finite(train_row.get("mean_return")),
-                }
-            )
-        rows = per_seed[-n_seeds:]
-        aggregate: dict[str, Any] = {"point": g, **point, "num_seeds": n_seeds}
-        for key in SUMMARY_METRICS + ("train_delivery_rate", "first_optimal_step"):
-            mean, half, count = mean_half_width([r[key] for r in rows])
-            aggregate[key] = mean
-            aggregate[f"{key}_ci95"] = half
-            if key == "first_optimal_step":
-                aggregate["converged_seeds"] = count
-        aggregate["all_optimal_seeds"] = sum(bool(r["all_optimal"]) for r in rows)
-        per_point.append(aggregate)
+            row = {"point": g, **point, "seed": sweep.seeds[s]}
+            row.update(evaluation_values(columns, seed_row, solved[s]))
+            row["first_optimal_step"] = None if first[index] is None else first[index] * steps
+            row["stable_optimal_step"] = None if stable[index] is None else stable[index] * steps
+            row.update(training_values(columns, last_train.get(index, {})))
+            rows.append(row)
+        per_seed.extend(rows)
+        per_point.append(_aggregate(columns, {"point": g, **point, "num_seeds": n_seeds}, rows))
     timings = {
-        "init_seconds": init_seconds,
+        "init_seconds": batch.init_seconds,
         "compile_seconds": result.compile_seconds,
         "train_seconds": result.train_seconds,
-        "eval_seconds": eval_seconds,
+        "eval_seconds": batch.eval_seconds,
         "env_steps_per_element": result.updates_done * steps,
         "env_steps_per_second": result.updates_done * steps * len(seeds) / max(result.train_seconds, 1e-9),
     }
-    return SweepResult(sweep, result, per_seed, per_point, metric_rows, timings)
+    return SweepResult(sweep, result, per_seed, per_point, metric_rows, timings, columns,
+                       evaluation.solved_definition)
+
+
+def evaluation_values(columns: Any, seed_row: dict[str, Any], solved: bool) -> dict[str, Any]:
+    """One seed's evaluation metrics (``None`` where missing or NaN), then its solved flags."""
+    out = {m.key: _finite(seed_row.get(m.key)) for m in columns.metrics if m.kind != "solved"}
+    out.update({m.key: solved for m in columns.metrics if m.kind == "solved"})
+    return out
+
+
+def training_values(columns: Any, train_row: dict[str, Any]) -> dict[str, Any]:
+    """One seed's last training log row, as the family's training columns.
+
+    A metric the algorithm does not log for this environment (a multi-agent
+    fleet has no per-episode delivery rate) is ``None``, never an error.
+    """
+    return {train_column(m): _finite(train_row.get(m.key)) for m in columns.train}
+
+
+def _aggregate(columns: Any, head: dict[str, Any], rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """A point's row: mean and 95 % half-width over seeds of each metric, convergence, solved counts."""
+    aggregate = dict(head)
+    keys = [m.key for m in columns.metrics if m.kind != "solved" and m.aggregate]
+    keys += [train_column(m) for m in columns.train if m.aggregate]
+    for key in keys + ["first_optimal_step"]:
+        mean, half, _ = mean_half_width([r[key] for r in rows])
+        aggregate[key] = mean
+        aggregate[f"{key}_ci95"] = half
+    aggregate["converged_seeds"] = mean_half_width([r["first_optimal_step"] for r in rows])[2]
+    for m in columns.metrics:
+        if m.kind == "solved":
+            aggregate[f"{m.key}_seeds"] = sum(bool(r[m.key]) for r in rows)
+    return aggregate
 
 
 def _finite(value: Any) -> float | None:
-    return None if value is None or (isinstance(value, float) and math.isnan(value)) else float(value)
+    """A metric as a float, or ``None`` when missing or NaN (no episode to average over)."""
+    if value is None:
+        return None
+    value = float(value)
+    return None if math.isnan(value) else value
 
 
 # The outputs and the command line live in their own modules; re-exported for ``wrl_jax.sweep`` users.
@@ -319,7 +495,9 @@ __all__ = [
     "Sweep",
     "SweepResult",
     "build_parser",
+    "default_columns",
     "hyper_for",
+    "is_traced_env_field",
     "main",
     "parse_grid",
     "parse_sets",
@@ -327,6 +505,8 @@ __all__ = [
     "plot_sweep",
     "results_markdown",
     "run_sweep",
+    "traced_env_fields",
     "traced_fields",
+    "training_values",
     "write_outputs",
 ]

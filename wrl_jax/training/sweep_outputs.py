@@ -1,4 +1,9 @@
-"""A sweep's outputs: the results table, CSV, JSON and the plot (:func:`write_outputs`)."""
+"""A sweep's outputs: the results table, CSV, JSON and the plot (:func:`write_outputs`).
+
+Which metrics they show is the environment family's choice (its evaluation's
+``sweep_columns``, carried by :class:`~wrl_jax.training.sweep.SweepResult`), so
+one writer serves the warehouse, the fleet and any later family.
+"""
 
 from __future__ import annotations
 
@@ -28,38 +33,38 @@ def _fmt_ci(mean: float | None, half: float | None, percent: bool = False, digit
     return text
 
 
+def _metric_cell(metric: Any, point: dict[str, Any], num_seeds: int, key: str | None = None) -> str:
+    """One cell of the table: a rate in %, a number, or the count of seeds that solved the task."""
+    key = key or metric.key
+    if metric.kind == "solved":
+        return f"{point[f'{key}_seeds']}/{num_seeds}"
+    percent = metric.kind in ("percent", "ratio")
+    return _fmt_ci(point.get(key), point.get(f"{key}_ci95"), percent=percent, digits=metric.digits)
+
+
 def results_markdown(result: SweepResult) -> str:
-    """The per-point table: greedy evaluation after training, mean ± 95 % CI over seeds."""
-    sweep = result.sweep
+    """The per-point table: greedy evaluation after training, mean ± 95 % CI over seeds.
+
+    The columns are the family's (:class:`~wrl_jax.training.evaluation.SweepColumns`):
+    its evaluation metrics, its training metrics, then the generic convergence column.
+    """
+    from wrl_jax.training.sweep import train_column
+
+    sweep, columns = result.sweep, result.columns
     n = len(sweep.seeds)
-    header = (
-        sweep.fields
-        + [
-            "greedy success",
-            "greedy optimal items",
-            "seeds all-optimal",
-            "mean steps (delivered)",
-            "greedy return",
-            "train delivery (last log)",
-            "first optimal step",
-        ]
-    )
+    metrics = [m for m in columns.metrics if m.table]
+    train = [m for m in columns.train if m.table]
+    header = sweep.fields + [m.label for m in metrics] + [m.label for m in train] + [columns.convergence_label]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for p in result.per_point:
         conv = p["converged_seeds"]
         first = "none"
         if conv:
             first = f"{_fmt_ci(p['first_optimal_step'], p['first_optimal_step_ci95'], digits=0)} ({conv}/{n})"
-        cells = [_fmt(p[f]) for f in sweep.fields] + [
-            _fmt_ci(p["success_rate"], p["success_rate_ci95"], percent=True),
-            _fmt_ci(p["optimal_rate"], p["optimal_rate_ci95"], percent=True),
-            f"{p['all_optimal_seeds']}/{n}",
-            _fmt_ci(p["mean_steps"], p["mean_steps_ci95"], digits=2),
-            _fmt_ci(p["mean_return"], p["mean_return_ci95"]),
-            _fmt_ci(p["train_delivery_rate"], p["train_delivery_rate_ci95"], percent=True),
-            first,
-        ]
-        lines.append("| " + " | ".join(cells) + " |")
+        cells = [_fmt(p[f]) for f in sweep.fields]
+        cells += [_metric_cell(m, p, n) for m in metrics]
+        cells += [_metric_cell(m, p, n, train_column(m)) for m in train]
+        lines.append("| " + " | ".join(cells + [first]) + " |")
     t = result.timings
     d = sweep.describe()
     title = (
@@ -67,8 +72,9 @@ def results_markdown(result: SweepResult) -> str:
         f"in one program, {t['env_steps_per_element']:,} env steps each; compile {t['compile_seconds']:.1f} s, "
         f"train {t['train_seconds']:.1f} s ({t['env_steps_per_second'] / 1e3:,.0f}k env steps/s)"
     )
-    note = "± is the 95 % Student-t confidence interval over seeds; 'first optimal step': env steps per seed at the " \
-        "first periodic greedy evaluation with every item at the BFS optimum (mean over the seeds that got there)."
+    definition = columns.convergence_note or result.solved_definition
+    note = f"± is the 95 % Student-t confidence interval over seeds; '{columns.convergence_label}': {definition} " \
+        "(mean over the seeds that got there)."
     return f"{title}\n\n" + "\n".join(lines) + f"\n\n{note}\n"
 
 
@@ -83,8 +89,21 @@ def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
             writer.writerow({k: "" if row.get(k) is None else row.get(k) for k in keys})
 
 
+def _plot_panels(columns: Any) -> list[tuple[str, str, float, bool]]:
+    """``(key, y label, scale, bounded)`` per panel: the family's metrics with a plot label.
+
+    ``bounded``: a rate, drawn on 0-100 % (the CI of a few seeds can reach past it);
+    a family that names no panel gets its first evaluation metric.
+    """
+    metrics = [m for m in columns.metrics if m.kind != "solved" and m.aggregate]
+    chosen = [m for m in metrics if m.plot] or metrics[:1]
+    return [(m.key, m.plot or m.label, 100.0 if m.kind in ("percent", "ratio") else 1.0, m.kind == "percent")
+            for m in chosen]
+
+
 def plot_sweep(result: SweepResult, path: Path) -> None:
-    """Final greedy success rate, optimal-item rate and mean steps against the first grid field."""
+    """The family's headline metrics (e.g. the warehouse's success rate, optimal-item rate and mean
+    steps; the fleet's throughput, ratio to PIBT and blocks) against the first grid field."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -98,13 +117,12 @@ def plot_sweep(result: SweepResult, path: Path) -> None:
     groups: dict[tuple, list[dict[str, Any]]] = {}
     for p in result.per_point:
         groups.setdefault(tuple(p[f] for f in others), []).append(p)
-    panels = [
-        ("success_rate", "greedy success rate (%)", 100.0),
-        ("optimal_rate", "items at the BFS optimum (%)", 100.0),
-        ("mean_steps", "mean steps (delivered)", 1.0),
-    ]
-    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 4), constrained_layout=True)
-    for ax, (key, label, scale) in zip(axes, panels):
+    panels = _plot_panels(result.columns)
+    if not panels:
+        return
+    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 4), constrained_layout=True, squeeze=False)
+    axes = axes[0]
+    for ax, (key, label, scale, bounded) in zip(axes, panels):
         for combo, points in groups.items():
             name = ", ".join(f"{f}={_fmt(v)}" for f, v in zip(others, combo)) or None
             x = [p[x_field] for p in points]
@@ -113,7 +131,7 @@ def plot_sweep(result: SweepResult, path: Path) -> None:
             ax.errorbar(x if numeric else range(len(x)), y, yerr=err, marker="o", capsize=3, label=name)
         if log_x:
             ax.set_xscale("log")
-        if scale == 100.0:
+        if bounded:
             ax.set_ylim(-5, 105)  # a rate: the CI of a few seeds can reach past 0-100 %
         if not numeric:
             ax.set_xticks(range(len(xs)), [str(v) for v in xs])

@@ -31,7 +31,7 @@ from flax import struct
 
 from wrl_jax.envs.fleet import metrics
 from wrl_jax.stats import mean_ci
-from wrl_jax.training.evaluation import FamilyEvaluation, FinalContext
+from wrl_jax.training.evaluation import FamilyEvaluation, FinalContext, SweepColumns, SweepMetric
 
 EVAL_SEED = 0
 """``python -m wrl_jax.plan``'s default ``--seed``: the evaluation's shifts are the planners'."""
@@ -277,5 +277,23 @@ EVALUATION = FamilyEvaluation(
     format_details=format_details,
     progress_metric=("eval_vs_pibt", "of PIBT"),
     final_report=final_report,
+    # A sweep reads the periodic evaluation after the last update (the final report's
+    # 100-shift evaluation runs only after a single training run).
+    sweep_columns=SweepColumns(
+        metrics=(
+            SweepMetric("throughput", "greedy throughput", digits=3, plot="deliveries per step (greedy fleet)"),
+            SweepMetric("vs_pibt", "greedy / PIBT", "ratio", plot="throughput / PIBT's (%)"),
+            SweepMetric("at_least_pibt", "seeds >= PIBT", "solved"),
+            SweepMetric("bound_fraction", "of bound K / L*", "ratio"),
+            SweepMetric("blocks_per_100", "blocks /robot /100 steps", digits=2,
+                        plot="robot blocks per robot per 100 steps"),
+            SweepMetric("shelf_hits_per_100", "shelf hits /robot /100 steps", digits=2),
+            SweepMetric("waits_per_100", "waits /robot /100 steps", digits=2),
+            SweepMetric("pibt_throughput", "PIBT throughput", digits=3, table=False),
+        ),
+        train=(SweepMetric("train_throughput", "train throughput (last log)", digits=3),),
+        rows=("periodic", "per_seed"),
+        convergence_label="first step >= PIBT",
+    ),
 )
 """The fleet family's evaluation hook (:mod:`wrl_jax.training.evaluation`)."""

@@ -35,6 +35,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 from gymnax.environments import spaces
 
@@ -53,8 +54,17 @@ from wrl_jax.core.observation import (
     wall_words,
 )
 from wrl_jax.core.random import random_words, threefry2x32, threefry_key_data
-from wrl_jax.envs.procedural.generators import GeneratorConfig
-from wrl_jax.envs.procedural.pool import LayoutPool, refresh_pool
+from wrl_jax.envs.procedural.generators import GeneratorConfig, generate_batch
+from wrl_jax.envs.procedural.pool import (
+    LayoutPool,
+    generate_pool,
+    pool_from_keys,
+    pool_hashes,
+    pool_of,
+    refresh_keys,
+    refresh_pool,
+    refresh_slots,
+)
 from wrl_jax.envs.warehouse.env import check_action, item_from_word, spec_reward
 
 NUM_ACTIONS = 4
@@ -129,15 +139,24 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
             observation (no window): not a generalizing observation, but it
             isolates the cost of per-environment layouts from the window's in
             bench/procedural_throughput.py.
+        pool_seed: the seed the initial pool was generated from (``None``: a pool of
+            given layouts); refreshes draw from the same seed's training stream.
+        pool_refresh: slots of the pool a learner renews before every update
+            (:meth:`params_for_update`; 0: the pool never changes while training).
     """
 
     num_actions = NUM_ACTIONS
     family = "procedural"
 
     def __init__(self, default_params: ProceduralParams | None = None, *, generator: GeneratorConfig,
-                 pool_size: int, view_radius: int = 2, observe_map: bool = False, observe_window: bool = True):
+                 pool_size: int, view_radius: int = 2, observe_map: bool = False, observe_window: bool = True,
+                 pool_seed: int | None = None, pool_refresh: int = 0):
         if not 1 <= int(pool_size) <= MAX_POOL_SIZE:
             raise ValueError(f"pool_size must be in 1..{MAX_POOL_SIZE}, got {pool_size}")
+        if not 0 <= int(pool_refresh) <= int(pool_size):
+            raise ValueError(f"pool_refresh must be in 0..pool_size={pool_size} slots per update, got {pool_refresh}")
+        if int(pool_refresh) and pool_seed is None:
+            raise ValueError("pool_refresh needs a generated pool (its seed): a pool of given layouts is not refreshed")
         if int(view_radius) < 0:
             raise ValueError(f"view_radius must be non-negative, got {view_radius}")
         self.generator = generator
@@ -145,6 +164,8 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         self.view_radius = int(view_radius)
         self.observe_map = bool(observe_map)
         self.observe_window = bool(observe_window)
+        self.pool_seed = None if pool_seed is None else int(pool_seed)
+        self.pool_refresh = int(pool_refresh)
         if default_params is not None:
             self.check_params(default_params)
         super().__init__(default_params)
@@ -158,12 +179,14 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         return tuple(self.generator.max_shape)
 
     def static_config(self) -> tuple:
-        return (self.generator, self.pool_size, self.view_radius, self.observe_map, self.observe_window)
+        return (self.generator, self.pool_size, self.view_radius, self.observe_map, self.observe_window,
+                self.pool_seed, self.pool_refresh)
 
     def __repr__(self) -> str:
         return (f"ProceduralWarehouse(max_shape={self.max_shape}, pool_size={self.pool_size}, "
                 f"view_radius={self.view_radius}, observe_map={self.observe_map}, "
-                f"observe_window={self.observe_window}, family={self.generator.family!r})")
+                f"observe_window={self.observe_window}, pool_refresh={self.pool_refresh}, "
+                f"family={self.generator.family!r})")
 
     def check_params(self, params: ProceduralParams) -> None:
         """``ValueError`` unless the params' pool and reset observations fit this environment's static shapes."""
@@ -331,6 +354,54 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
     def refresh_pool(self, key: jax.Array, params: ProceduralParams, count: int | None = None) -> ProceduralParams:
         """Params with the pool (or ``count`` slots of it) regenerated from ``key``; call between updates."""
         return self.with_pool(params, refresh_pool(key, params.pool, self.generator, count))
+
+    @property
+    def refreshes_params(self) -> bool:
+        return self.pool_refresh > 0
+
+    def params_for_update(self, params: ProceduralParams, update_index: jax.Array) -> ProceduralParams:
+        """``params`` with ``pool_refresh`` slots renewed before update ``update_index`` (inside ``jit``).
+
+        The fresh layouts come from the training stream of ``pool_seed``
+        (:func:`~wrl_jax.envs.procedural.pool.refresh_keys`) and replace the oldest slots
+        (:func:`~wrl_jax.envs.procedural.pool.refresh_slots`); their walls and reset
+        observations are computed for the new slots only. A function of ``update_index``
+        alone: every seed of a run trains on the same layout stream, a resumed run continues
+        it exactly, and :meth:`training_layout_hashes` can list every layout a run saw.
+        """
+        if not self.refreshes_params:
+            return params
+        keys = refresh_keys(jax.random.key(self.pool_seed), update_index, self.pool_refresh)
+        fresh = pool_of(generate_batch(keys, self.generator))
+        walls = self.pool_walls(fresh)
+        reset_obs = self.reset_observations(fresh, walls)
+        slots = refresh_slots(update_index, self.pool_refresh, self.pool_size)
+
+        def put(old, new):
+            return old.at[slots].set(new)
+
+        return params.replace(pool=jax.tree.map(put, params.pool, fresh), walls=put(params.walls, walls),
+                              reset_obs=put(params.reset_obs, reset_obs))
+
+    def training_layout_hashes(self, params: ProceduralParams, updates: int | None) -> np.ndarray:
+        """uint64 hashes of every layout training on ``params`` for ``updates`` updates could have drawn.
+
+        ``params``' own pool, plus (when the pool is refreshed) the initial pool of ``pool_seed``
+        and every refresh before updates ``0 .. updates - 1``, regenerated: what a held-out set
+        must not contain. ``updates=None`` with refreshes: ``ValueError`` (unknown).
+        """
+        seen = [pool_hashes(params.pool)]
+        if self.refreshes_params:
+            if updates is None:
+                raise ValueError("the pool was refreshed while training: pass the number of updates trained")
+            seen.append(pool_hashes(generate_pool(jax.random.key(self.pool_seed), self.pool_size, self.generator)))
+            batch = max(1, 8192 // self.pool_refresh)  # updates regenerated per call
+            for first in range(0, int(updates), batch):
+                count = min(batch, int(updates) - first)
+                keys = jax.vmap(lambda u: refresh_keys(jax.random.key(self.pool_seed), u, self.pool_refresh))(
+                    jnp.arange(first, first + count))
+                seen.append(pool_hashes(pool_from_keys(keys.reshape(-1), self.generator)))
+        return np.unique(np.concatenate(seen))
 
     def optimal_steps(self, state: ProceduralState) -> jax.Array:
         """The BFS optimum of the episode ``state`` belongs to (the yardstick of an evaluation)."""

@@ -52,7 +52,7 @@ from wrl_jax.envs.procedural.movingai import is_movingai, load_map, movingai_lay
 from wrl_jax.envs.procedural.pool import LayoutPool, disjoint_from, generate_pool, pool_hashes, pool_of
 from wrl_jax.envs.warehouse.layout import parse
 from wrl_jax.envs.warehouse.maps import WAREHOUSE_8X8, WAREHOUSE_12X12
-from wrl_jax.training.evaluation import FamilyEvaluation, FinalContext
+from wrl_jax.training.evaluation import FamilyEvaluation, FinalContext, SweepColumns, SweepMetric
 
 EVAL_SEED = 2026
 EVAL_LAYOUTS = 64
@@ -386,14 +386,17 @@ def layout_file_sets(paths: Sequence[str], max_shape: tuple[int, int], num_items
     return sets
 
 
-def heldout_set(generator, training_pool: LayoutPool, count: int | None = None) -> tuple[LayoutSet, int]:
-    """``(set, overlap)``: ``count`` (:data:`FINAL_HELDOUT_LAYOUTS`) held-out layouts minus any in the training pool.
+def heldout_set(generator, training: LayoutPool | np.ndarray, count: int | None = None) -> tuple[LayoutSet, int]:
+    """``(set, overlap)``: ``count`` (:data:`FINAL_HELDOUT_LAYOUTS`) held-out layouts minus any training saw.
 
-    ``overlap`` counts the generated layouts whose hash is among the training pool's (dropped).
+    ``training``: the training pool, or the hashes of every layout training saw (a refreshed pool:
+    :meth:`~wrl_jax.envs.procedural.env.ProceduralWarehouse.training_layout_hashes`). ``overlap``
+    counts the generated layouts whose hash is among them (dropped).
     """
     count = FINAL_HELDOUT_LAYOUTS if count is None else int(count)
     pool = generate_pool(jax.random.fold_in(jax.random.key(EVAL_SEED), 1), count, generator, stream="heldout")
-    keep = disjoint_from(pool, pool_hashes(training_pool))
+    seen = pool_hashes(training) if isinstance(training, LayoutPool) else np.asarray(training, dtype=np.uint64)
+    keep = disjoint_from(pool, seen)
     layouts = jax.tree.map(lambda leaf: leaf[np.flatnonzero(keep)], pool.layouts)
     overlap = int((~keep).sum())
     return LayoutSet("heldout", f"{int(keep.sum())} held-out layouts of the training generator "
@@ -410,11 +413,13 @@ def final_report(context: FinalContext) -> dict[str, Any]:
     """
     tic = time.perf_counter()
     env, params = context.env, context.params
-    heldout, overlap = heldout_set(env.generator, params.pool)
+    seen = env.training_layout_hashes(params, context.updates_done)
+    heldout, overlap = heldout_set(env.generator, seen)
     sets = [heldout, *ood_sets(env.generator)]
     report = evaluate_sets(context.algo.greedy_action, context.network_params, env, params, sets, context.seeds)
     return {
         "heldout": {**report.pop("heldout"), "overlap_with_training": overlap},
+        "training_layouts": int(seen.size),
         "ood": report,
         "final_report_seconds": time.perf_counter() - tic,
     }
@@ -503,4 +508,20 @@ EVALUATION = FamilyEvaluation(
     format_details=format_details,
     progress_metric=("eval_success_rate", "held-out delivered"),
     final_report=final_report,
+    # A sweep reads the periodic evaluation after the last update (EVAL_LAYOUTS held-out layouts).
+    sweep_columns=SweepColumns(
+        metrics=(
+            SweepMetric("success_rate", "held-out delivered", "percent", plot="held-out episodes delivered (%)"),
+            SweepMetric("optimal_rate", "at the BFS optimum", "percent", plot="at the BFS optimum (%)"),
+            SweepMetric("all_optimal", "seeds all-optimal", "solved"),
+            SweepMetric("mean_excess", "mean excess steps (delivered)", digits=2,
+                        plot="mean steps over the optimum (delivered)"),
+            SweepMetric("collisions_per_episode", "collisions / episode", digits=2),
+        ),
+        train=(
+            SweepMetric("delivery_rate", "train delivery (last log)", "percent"),
+            SweepMetric("mean_return", "train return (last log)", table=False, aggregate=False),
+        ),
+        convergence_label="first optimal step",
+    ),
 )

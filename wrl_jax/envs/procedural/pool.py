@@ -75,6 +75,27 @@ def stream_keys(key: jax.Array, stream: str, count: int) -> jax.Array:
     return jax.random.split(jax.random.fold_in(key, STREAMS[stream]), count)
 
 
+def refresh_keys(key: jax.Array, update: jax.Array, count: int) -> jax.Array:
+    """``count`` layout keys of the training refresh before update ``update`` (traced is fine).
+
+    The training stream of ``key`` (:func:`stream_keys`'s root) folded with ``update + 1``: a
+    refresh never redraws the initial pool's keys (``split`` of the root itself), nor another
+    update's, and never the held-out stream's.
+    """
+    root = jax.random.fold_in(key, STREAMS["train"])
+    return jax.random.split(jax.random.fold_in(root, jnp.asarray(update, jnp.uint32) + 1), count)
+
+
+def refresh_slots(update: jax.Array, count: int, size: int) -> jax.Array:
+    """The ``count`` pool slots the refresh before update ``update`` replaces: oldest first (a ring).
+
+    Update ``u`` writes slots ``u * count .. u * count + count - 1`` modulo the pool size, so the
+    whole pool is renewed every ``size / count`` updates and every layout stays for as long.
+    """
+    start = (jnp.asarray(update, jnp.int32) * count) % size
+    return (start + jnp.arange(count, dtype=jnp.int32)) % size
+
+
 @partial(jax.jit, static_argnames=("config",))
 def pool_from_keys(keys: jax.Array, config: GeneratorConfig) -> LayoutPool:
     """One generated layout per key, with its optima (one compiled program per config and key count)."""

@@ -23,7 +23,8 @@ from wrl_jax.envs.warehouse.types import REWARD_DEFAULTS
 DEFAULT_MAX_STEPS = 300
 """Episode length (the study's 12x12 uses 300; a 16x16 route is at most a few dozen steps longer)."""
 
-ENV_OPTIONS = ("seed", "pool_size", "max_shape", "view_radius", "observe_map", "observe_window", "max_steps")
+ENV_OPTIONS = ("seed", "pool_size", "pool_refresh", "max_shape", "view_radius", "observe_map", "observe_window",
+               "max_steps")
 
 GENERATOR_FIELDS = ("family", "min_shape", "max_items", "min_items", "density", "gap_rate", "aisle", "shelf_mix",
                     "items_on_pick_faces", "min_reach", "max_attempts")
@@ -48,10 +49,13 @@ def make_params(env: ProceduralWarehouse, pool: LayoutPool, *, max_steps: int = 
     )
 
 
-def make_procedural(*, seed: int = 0, pool_size: int = 1024, max_shape: tuple[int, int] = (16, 16),
-                    view_radius: int = 2, observe_map: bool = False, observe_window: bool = True,
-                    max_steps: int = DEFAULT_MAX_STEPS, **overrides) -> tuple[ProceduralWarehouse, ProceduralParams]:
+def make_procedural(*, seed: int = 0, pool_size: int = 1024, pool_refresh: int = 0,
+                    max_shape: tuple[int, int] = (16, 16), view_radius: int = 2, observe_map: bool = False,
+                    observe_window: bool = True, max_steps: int = DEFAULT_MAX_STEPS, **overrides) -> tuple[ProceduralWarehouse, ProceduralParams]:
     """``(env, params)``: a pool of ``pool_size`` generated layouts, drawn from ``seed``.
+
+    ``pool_refresh``: slots a learner renews before every update, from the same seed's
+    training stream (:meth:`ProceduralWarehouse.params_for_update`; 0: a fixed pool).
 
     Overrides: any :class:`GeneratorConfig` field (``family``, ``min_shape``,
     ``max_items``, ``density``, ...), ``max_steps`` and SPEC.md's reward constants.
@@ -69,7 +73,8 @@ def make_procedural(*, seed: int = 0, pool_size: int = 1024, max_shape: tuple[in
         raise ValueError(f"pool_size must be in 1..65535, got {pool_size}")
     pool = generate_pool(jax.random.key(int(seed)), int(pool_size), generator)
     env = ProceduralWarehouse(generator=generator, pool_size=int(pool_size), view_radius=view_radius,
-                              observe_map=observe_map, observe_window=observe_window)
+                              observe_map=observe_map, observe_window=observe_window, pool_seed=int(seed),
+                              pool_refresh=int(pool_refresh))
     params = make_params(env, pool, max_steps=max_steps, **overrides)
     env.check_params(params)
     return env.with_default_params(params), params

@@ -44,7 +44,7 @@ from flax import struct
 from wrl_jax.envs.warehouse import routes
 from wrl_jax.envs.warehouse.env import Warehouse
 from wrl_jax.envs.warehouse.types import EnvParams
-from wrl_jax.training.evaluation import FamilyEvaluation
+from wrl_jax.training.evaluation import FamilyEvaluation, SweepColumns, SweepMetric
 
 GreedyFn = Callable[[Any, jax.Array], jax.Array]
 """``greedy_action(network_params, obs) -> action`` for one observation."""
@@ -325,5 +325,22 @@ EVALUATION = FamilyEvaluation(
     format_report=format_table3,
     format_details=format_items,
     progress_metric=("eval_optimal_rate", "eval optimal"),
+    sweep_columns=SweepColumns(
+        metrics=(
+            SweepMetric("success_rate", "greedy success", "percent", plot="greedy success rate (%)"),
+            SweepMetric("optimal_rate", "greedy optimal items", "percent", plot="items at the BFS optimum (%)"),
+            SweepMetric("all_optimal", "seeds all-optimal", "solved"),
+            SweepMetric("mean_steps", "mean steps (delivered)", digits=2, plot="mean steps (delivered)"),
+            SweepMetric("mean_return", "greedy return"),
+            SweepMetric("collision_free_rate", "collision-free episodes", "percent", table=False),
+        ),
+        train=(
+            SweepMetric("delivery_rate", "train delivery (last log)", "percent"),
+            SweepMetric("mean_return", "train return (last log)", table=False, aggregate=False),
+        ),
+        convergence_label="first optimal step",
+        convergence_note="env steps per seed at the first periodic greedy evaluation with every item at the BFS "
+                         "optimum",
+    ),
 )
 """The warehouse family's evaluation hook (:mod:`wrl_jax.training.evaluation`)."""
