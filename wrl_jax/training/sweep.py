@@ -68,23 +68,6 @@ from typing import Any
 
 from wrl_jax.stats import mean_half_width
 
-ENV_FIELDS = (
-    "step_penalty",
-    "obstacle_penalty",
-    "wall_penalty",
-    "shaping_coef",
-    "pickup_reward",
-    "delivery_reward",
-    "max_steps",
-)
-"""The single-robot warehouse's reward constants and episode limit: traced (0-d arrays of its
-``EnvParams``). Kept for importers; the sweep finds every family's traced fields in its params
-(:func:`traced_env_fields`)."""
-
-STATIC_ENV_OPTIONS = ("observe_carrying", "max_items")
-"""The warehouse's options that change shapes (observation width, item capacity): static. Kept
-for importers; the sweep refuses any option of ``wrl_jax.make`` that is not a scalar params leaf."""
-
 
 class StaticFieldError(ValueError):
     """A grid over a field that fixes shapes or program structure (cannot be a ``vmap`` axis)."""
