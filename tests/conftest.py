@@ -20,11 +20,20 @@ if _OWNS_CACHE:
     os.environ["WRL_TEST_CACHE_OWNER"] = str(os.getpid())
 # Cache every program that took a fifth of a second or more to compile (JAX's default is 1 s).
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
-# The commands' XLA optimization level (wrl_jax.cli.machine.DEFAULT_XLA_OPT_LEVEL) in the test
-# processes too: about half the compile time of XLA's default (most test programs run for
-# milliseconds), and the same compiled programs as the CLI subprocesses, so the cache serves both.
-if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_backend_optimization_level=1".strip()
+# The commands' XLA settings (wrl_jax.cli.machine: LLVM level 1, the classic fusion emitter) in the test
+# processes too: about half the compile time of XLA's defaults (most test programs run for milliseconds,
+# and compiling is most of what the suite does), and the same compiled programs as the CLI subprocesses,
+# which inherit XLA_FLAGS, so the cache serves both.
+# machine.py is loaded by its path: importing any wrl_jax module runs wrl_jax/__init__, which starts JAX's
+# backend, after which XLA_FLAGS is read no more.
+import importlib.util  # noqa: E402
+
+_spec = importlib.util.spec_from_file_location(
+    "_wrl_jax_machine", os.path.join(os.path.dirname(__file__), "..", "wrl_jax", "cli", "machine.py"))
+_machine = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_machine)
+os.environ["XLA_FLAGS"] = _machine.xla_flags_with_defaults(os.environ.get("XLA_FLAGS", ""),
+                                                           _machine.DEFAULT_XLA_OPT_LEVEL)
 
 import pytest  # noqa: E402
 

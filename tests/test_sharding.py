@@ -1,8 +1,10 @@
 """Training sharded over devices (wrl_jax.sharding) gives the unsharded results.
 
-XLA flags must be set before JAX initializes, so each check runs in a fresh
+XLA flags must be set before JAX initializes, so the checks run in a fresh
 Python process with ``XLA_FLAGS=--xla_force_host_platform_device_count=2``
-(two CPU devices) and reports its comparisons as JSON.
+(two CPU devices), one process for all of them (a module fixture: JAX's start-up
+and the programs the checks share are paid once), which reports its comparisons
+as JSON; the tests below assert on them.
 
 What is compared, and why not everything bitwise: XLA on CPU may choose a
 different reduction kernel for a different batch shape, so a seed trained in a
@@ -92,7 +94,6 @@ out["env_obs_spec"] = list(env_sharded.runners.obs.sharding.spec)
 out["env_obs_shard_shape"] = list(env_sharded.runners.obs.addressable_shards[0].data.shape)
 out["env_sharded_vs_one_device_max_diff"] = max_diff(leaves(env_sharded.runners), leaves(whole[0]))
 out["env_sharded_env_state_equal"] = bitwise(leaves(env_sharded.runners.env_state), leaves(whole[0].env_state))
-print("RESULT" + json.dumps(out))
 """
 
 SWEEP_AXIS = """
@@ -123,20 +124,37 @@ first = [x[:2] for x in leaves(dqn_sharded.runners)]
 out["dqn_sharded_vs_half_max_diff"] = max_diff(first, leaves(dqn_half.runners))
 out["dqn_integer_state_equal"] = bitwise([x for x in first if x.dtype.kind != "f"],
                                          [x for x in leaves(dqn_half.runners) if x.dtype.kind != "f"])
-print("RESULT" + json.dumps(out))
 """
 
+LAYOUT_ERRORS = """
+errors = {}
+mesh = sharding.make_mesh(2, 1)
+for name, args in {"seeds": (3, 8, mesh), "envs": (2, 7, sharding.make_mesh(2, 2))}.items():
+    try:
+        sharding.check_layout(*args)
+    except ValueError as exc:
+        errors[name] = str(exc)
+out["errors"] = errors
+"""
 
-def run_with_two_devices(body: str) -> dict:
+CLI_ARGS = ["--env", "Warehouse-8x8-v0", "--num-seeds", "2", "--total-timesteps", "512", "--num-envs", "8",
+            "--num-steps", "16", "--num-minibatches", "2", "--update-epochs", "1", "--hidden-sizes", "16",
+            "--eval-every", "2", "--no-progress", "--no-plot"]
+"""The tiny PPO run of the command-line check (4 updates, an evaluation every 2)."""
+
+
+def run_with_two_devices(*bodies: str) -> dict:
+    """Run the prelude, then ``bodies`` in one Python process with 2 CPU devices; their ``out`` as a dict."""
     env = dict(os.environ)
-    env["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2 --xla_backend_optimization_level=1"
+    env["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2 " + os.environ.get("XLA_FLAGS", "")
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    source = textwrap.dedent(PRELUDE) + "".join(textwrap.dedent(b) for b in bodies)
     proc = subprocess.run(
-        [sys.executable, "-c", textwrap.dedent(PRELUDE) + textwrap.dedent(body)],
+        [sys.executable, "-c", source + '\nprint("RESULT" + json.dumps(out))\n'],
         env=env,
         capture_output=True,
         text=True,
-        timeout=600,
+        timeout=900,
         cwd=ROOT,
     )
     assert proc.returncode == 0, proc.stderr[-4000:]
@@ -144,9 +162,14 @@ def run_with_two_devices(body: str) -> dict:
     return json.loads(line[len("RESULT") :])
 
 
-def test_seed_and_env_axes_sharded_match_one_device():
-    out = run_with_two_devices(SEED_AXIS)
-    print(out)
+@pytest.fixture(scope="module")
+def two_devices():
+    """Every in-process check, in one 2-device process."""
+    return run_with_two_devices(SEED_AXIS, SWEEP_AXIS, LAYOUT_ERRORS)
+
+
+def test_seed_and_env_axes_sharded_match_one_device(two_devices):
+    out = two_devices
     assert out["devices"] == 2
     # The state is really split: each device holds 2 of the 4 seeds' parameters.
     assert out["param_spec"] == ["seeds"]
@@ -164,9 +187,8 @@ def test_seed_and_env_axes_sharded_match_one_device():
     assert out["env_sharded_env_state_equal"]
 
 
-def test_sharded_sweep_and_dqn_match_one_device():
-    out = run_with_two_devices(SWEEP_AXIS)
-    print(out)
+def test_sharded_sweep_and_dqn_match_one_device(two_devices):
+    out = two_devices
     assert out["sweep_spec"] == ["seeds"]
     assert out["sweep_points_equal_individual_runs_bitwise"] == [True]
     assert out["sweep_points_eval_equal"] == [True]
@@ -187,19 +209,8 @@ def test_layout_errors_are_clear():
         sharding.make_mesh(-1)
 
 
-def test_layout_errors_need_two_devices():
-    body = """
-errors = {}
-mesh = sharding.make_mesh(2, 1)
-for name, args in {"seeds": (3, 8, mesh), "envs": (2, 7, sharding.make_mesh(2, 2))}.items():
-    try:
-        sharding.check_layout(*args)
-    except ValueError as exc:
-        errors[name] = str(exc)
-out["errors"] = errors
-print("RESULT" + json.dumps(out))
-"""
-    out = run_with_two_devices(body)
+def test_layout_errors_need_two_devices(two_devices):
+    out = two_devices
     assert "3 seeds (x sweep points) do not split evenly over 2 devices" in out["errors"]["seeds"]
     assert "num_envs=7 does not split evenly over env_shards=2" in out["errors"]["envs"]
 
@@ -226,29 +237,29 @@ def _checkpoint_arrays(run_dir: Path) -> dict:
 
 def test_two_process_run_equals_one_process_with_two_devices(tmp_path):
     """The CLI flags only: ``--distributed`` on 2 processes (1 CPU device each, Gloo collectives, the
-    multi-host launch of docs/scale.md on one machine) and ``--devices 2`` in one process."""
-    args = [sys.executable, str(ROOT / "train_ppo.py"), "--env", "Warehouse-8x8-v0", "--num-seeds", "2",
-            "--total-timesteps", "512", "--num-envs", "8", "--num-steps", "16", "--num-minibatches", "2",
-            "--update-epochs", "1", "--hidden-sizes", "16", "--eval-every", "2", "--no-progress", "--no-plot"]
+    multi-host launch of docs/scale.md on one machine) and ``--devices 2`` in one process, the three at once.
+
+    The single-process run is a process of its own, not a call in the fixture's: run there, after the other
+    checks' programs, its floats differed from the hosts' in the last bits (seen 2026-12-02, not explained)."""
+    args = [sys.executable, str(ROOT / "train_ppo.py"), *CLI_ARGS]
     base = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     base["PYTHONPATH"] = str(ROOT) + os.pathsep + base.get("PYTHONPATH", "")
-    hosts = []
     port = _free_port()
-    for pid in range(2):
-        env = {**base, "WRL_COORDINATOR": f"localhost:{port}", "WRL_NUM_PROCESSES": "2", "WRL_PROCESS_ID": str(pid)}
-        hosts.append(subprocess.Popen(args + ["--distributed", "--out", str(tmp_path / f"host{pid}")], env=env,
-                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT))
-    logs = [p.communicate(timeout=600)[0] for p in hosts]
-    assert [p.returncode for p in hosts] == [0, 0], logs[0][-3000:] + logs[1][-3000:]
+    launches = [({**base, "WRL_COORDINATOR": f"localhost:{port}", "WRL_NUM_PROCESSES": "2",
+                  "WRL_PROCESS_ID": str(pid)}, ["--distributed", "--out", str(tmp_path / f"host{pid}")]) for pid in range(2)]
+    launches.append(({**base, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"},
+                     ["--devices", "2", "--out", str(tmp_path / "single")]))
+    processes = [subprocess.Popen(args + extra, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                  cwd=ROOT) for env, extra in launches]
+    logs = [p.communicate(timeout=600)[0] for p in processes]
+    assert [p.returncode for p in processes] == [0, 0, 0], "\n".join(log[-3000:] for log in logs)
     assert "2 cpu devices: seeds x2, envs x1 (2 process(es))" in logs[0]
-    single_env = {**base, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
-    single = subprocess.run(args + ["--devices", "2", "--out", str(tmp_path / "single")], env=single_env,
-                            capture_output=True, text=True, cwd=ROOT, timeout=600)
-    assert single.returncode == 0, single.stderr[-3000:]
+    assert "2 cpu devices: seeds x2, envs x1 (1 process(es))" in logs[2]
     # Same metrics file, same checkpoint (gathered from both hosts), bit for bit.
-    metrics = [(tmp_path / d / "metrics.csv").read_bytes() for d in ("host0", "host1", "single")]
+    dirs = [tmp_path / name for name in ("host0", "host1", "single")]
+    metrics = [(d / "metrics.csv").read_bytes() for d in dirs]
     assert metrics[0] == metrics[1] == metrics[2]
-    arrays = [_checkpoint_arrays(tmp_path / d) for d in ("host0", "host1", "single")]
+    arrays = [_checkpoint_arrays(d) for d in dirs]
     assert arrays[0].keys() == arrays[2].keys() and len(arrays[0]) > 10
     for key in arrays[0]:
         assert np.array_equal(arrays[0][key], arrays[1][key]) and np.array_equal(arrays[0][key], arrays[2][key]), key

@@ -223,7 +223,9 @@ class Trainer:
             runners, latest = carry
             runners, metrics = batched_update(runners, index)
             if eval_every:
-                summary_shapes = jax.eval_shape(evaluate, runners, index, latest)[0]
+                # The summary's shapes from the carried evaluation's (same shapes as a new one): tracing the
+                # evaluation once more only for its shapes costs seconds for the fleet's (PIBT inside).
+                summary_shapes = jax.eval_shape(jax.vmap(self.evaluation.seed_summary), latest.episodes)
                 due = ((index + 1) % eval_every == 0) | (index + 1 == num_updates)
                 summary, latest = jax.lax.cond(
                     due, evaluate, lambda r, i, l: (nan_like(summary_shapes), l), runners, index, latest
