@@ -74,3 +74,9 @@ def env_name(request):
 @pytest.fixture
 def env_and_params(env_name):
     return wrl_jax.make(env_name)
+
+
+def pytest_unconfigure(config):
+    """The controlling process removes the session's compilation cache (workers and subprocesses only read it)."""
+    if _OWNS_CACHE and os.environ.get("WRL_TEST_CACHE_OWNER") == str(os.getpid()):
+        shutil.rmtree(os.environ[_CACHE_VARIABLE], ignore_errors=True)
