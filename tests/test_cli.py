@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -125,6 +126,31 @@ def test_train_ppo_script_help():
     assert out.returncode == 0
     for flag in ("--env", "--preset", "--num-seeds", "--total-timesteps", "--learning-rate", "--out", "--resume"):
         assert flag in out.stdout
+
+
+@pytest.mark.parametrize("level, expected", [
+    ("1", ["--xla_backend_optimization_level=1", "--xla_cpu_use_fusion_emitters=false"]),
+    ("-1", []),
+])
+def test_the_scripts_set_xla_flags_before_jax_starts(level, expected):
+    """XLA reads XLA_FLAGS once, when JAX starts, and importing wrl_jax starts it: ``train_ppo.py`` must set the
+    command's settings first (until 2026-12-02 it set them after, so they never took effect)."""
+    probe = (
+        "import os, runpy, sys\n"
+        f"sys.argv = ['train_ppo.py', '--xla-opt-level', '{level}', '--help']\n"
+        "started = []\n"
+        "class Watch:\n"  # records whether JAX's backend module existed when XLA_FLAGS was first set
+        "    def find_spec(self, name, *args):\n"
+        "        if name == 'jax._src.xla_bridge': started.append(os.environ.get('XLA_FLAGS', ''))\n"
+        "sys.meta_path.insert(0, Watch())\n"
+        "try:\n    runpy.run_path('train_ppo.py', run_name='__main__')\nexcept SystemExit:\n    pass\n"
+        "print('FLAGS-AT-JAX-IMPORT', started[0])\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    out = subprocess.run([sys.executable, "-c", probe], cwd=REPO, capture_output=True, text=True, timeout=120, env=env)
+    assert out.returncode == 0, out.stderr[-2000:]
+    flags = [line for line in out.stdout.splitlines() if line.startswith("FLAGS-AT-JAX-IMPORT")][0].split()[1:]
+    assert flags == expected
 
 
 def test_an_environment_may_bring_its_own_default_preset(tmp_path):
