@@ -6,24 +6,12 @@ first step at which the greedy policy delivers every item at the optimum.
 See docs/dqn.md.
 """
 
-import importlib.util
 import sys
-from pathlib import Path
-
-
-def _apply_xla_settings() -> None:
-    """The command's XLA settings (``--xla-opt-level``, wrl_jax/cli/machine.py) into ``XLA_FLAGS`` before
-    JAX starts: importing wrl_jax starts it, and XLA reads ``XLA_FLAGS`` only then. machine.py is loaded
-    by its path for that reason (importing it as ``wrl_jax.cli.machine`` would import the package)."""
-    path = Path(__file__).resolve().parent / "wrl_jax" / "cli" / "machine.py"
-    spec = importlib.util.spec_from_file_location("_wrl_jax_machine", path)
-    machine = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(machine)
-    machine.apply_for_command(sys.argv[1:])
-
 
 if __name__ == "__main__":
-    _apply_xla_settings()
+    from train_ppo import apply_xla_settings  # the script's directory is on sys.path; it imports no JAX
+
+    apply_xla_settings()
     from wrl_jax.cli import main
 
     sys.exit(main("dqn"))

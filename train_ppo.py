@@ -9,10 +9,11 @@ import sys
 from pathlib import Path
 
 
-def _apply_xla_settings() -> None:
+def apply_xla_settings() -> None:
     """The command's XLA settings (``--xla-opt-level``, wrl_jax/cli/machine.py) into ``XLA_FLAGS`` before
     JAX starts: importing wrl_jax starts it, and XLA reads ``XLA_FLAGS`` only then. machine.py is loaded
-    by its path for that reason (importing it as ``wrl_jax.cli.machine`` would import the package)."""
+    by its path for that reason (importing it as ``wrl_jax.cli.machine`` would import the package).
+    train_dqn.py calls it too."""
     path = Path(__file__).resolve().parent / "wrl_jax" / "cli" / "machine.py"
     spec = importlib.util.spec_from_file_location("_wrl_jax_machine", path)
     machine = importlib.util.module_from_spec(spec)
@@ -21,7 +22,7 @@ def _apply_xla_settings() -> None:
 
 
 if __name__ == "__main__":
-    _apply_xla_settings()
+    apply_xla_settings()
     from wrl_jax.cli import main
 
     sys.exit(main("ppo"))

@@ -128,22 +128,23 @@ def test_train_ppo_script_help():
         assert flag in out.stdout
 
 
-@pytest.mark.parametrize("level, expected", [
-    ("1", ["--xla_backend_optimization_level=1", "--xla_cpu_use_fusion_emitters=false"]),
-    ("-1", []),
+@pytest.mark.parametrize("script, level, expected", [
+    ("train_ppo.py", "1", ["--xla_backend_optimization_level=1", "--xla_cpu_use_fusion_emitters=false"]),
+    ("train_dqn.py", "1", ["--xla_backend_optimization_level=1", "--xla_cpu_use_fusion_emitters=false"]),
+    ("train_ppo.py", "-1", []),
 ])
-def test_the_scripts_set_xla_flags_before_jax_starts(level, expected):
+def test_the_scripts_set_xla_flags_before_jax_starts(script, level, expected):
     """XLA reads XLA_FLAGS once, when JAX starts, and importing wrl_jax starts it: ``train_ppo.py`` must set the
     command's settings first (until 2026-12-02 it set them after, so they never took effect)."""
     probe = (
         "import os, runpy, sys\n"
-        f"sys.argv = ['train_ppo.py', '--xla-opt-level', '{level}', '--help']\n"
+        f"sys.argv = ['{script}', '--xla-opt-level', '{level}', '--help']\n"
         "started = []\n"
         "class Watch:\n"  # records whether JAX's backend module existed when XLA_FLAGS was first set
         "    def find_spec(self, name, *args):\n"
         "        if name == 'jax._src.xla_bridge': started.append(os.environ.get('XLA_FLAGS', ''))\n"
         "sys.meta_path.insert(0, Watch())\n"
-        "try:\n    runpy.run_path('train_ppo.py', run_name='__main__')\nexcept SystemExit:\n    pass\n"
+        f"sys.path.insert(0, '.')\ntry:\n    runpy.run_path('{script}', run_name='__main__')\nexcept SystemExit:\n    pass\n"
         "print('FLAGS-AT-JAX-IMPORT', started[0])\n"
     )
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
