@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import platform
-import sys
 from typing import Any
 
 DEFAULT_XLA_OPT_LEVEL = 1
@@ -34,26 +33,12 @@ def xla_flags_with_defaults(flags: str, level: int) -> str:
     return " ".join([flags.strip(), *added]).strip()
 
 
-def jax_backend_started() -> bool:
-    """Whether JAX has created its backends in this process (XLA reads ``XLA_FLAGS`` then, and never again).
-
-    Importing wrl_jax starts them (gymnax creates arrays at import), so the training scripts set
-    ``XLA_FLAGS`` before their first import (:func:`apply_for_command`); ``python -m wrl_jax.<command>``
-    imports the package before any of its code runs, so there only ``XLA_FLAGS`` itself is effective.
-    """
-    bridge = sys.modules.get("jax._src.xla_bridge")
-    return bool(getattr(bridge, "_backends", None))
-
-
-def apply_xla_opt_level(level: int) -> bool:
+def apply_xla_opt_level(level: int) -> None:
     """Set XLA's CPU optimization level and :data:`COMPILE_TIME_FLAGS` where ``XLA_FLAGS`` does not set them.
 
-    Effective only before JAX starts its backends; returns whether it was (or had nothing to change).
+    Effective only before JAX starts its backends: XLA reads ``XLA_FLAGS`` then, and never again.
     """
-    before = os.environ.get("XLA_FLAGS", "")
-    after = xla_flags_with_defaults(before, level)
-    os.environ["XLA_FLAGS"] = after
-    return after == before or not jax_backend_started()
+    os.environ["XLA_FLAGS"] = xla_flags_with_defaults(os.environ.get("XLA_FLAGS", ""), level)
 
 
 def opt_level_from_argv(argv: list[str]) -> int:
@@ -73,7 +58,12 @@ def opt_level_from_argv(argv: list[str]) -> int:
 
 
 def apply_for_command(argv: list[str]) -> None:
-    """The training scripts' first statement: the command line's XLA settings, before JAX starts."""
+    """The training scripts' first statement: the command line's XLA settings, before JAX starts.
+
+    Importing wrl_jax starts JAX (gymnax creates arrays at import), so the scripts call this before their
+    first import; ``python -m wrl_jax.<command>`` imports the package before any of its code runs, so
+    there only ``XLA_FLAGS`` itself is effective.
+    """
     apply_xla_opt_level(opt_level_from_argv(argv))
 
 
