@@ -139,13 +139,14 @@ def test_the_scripts_set_xla_flags_before_jax_starts(script, level, expected):
     probe = (
         "import os, runpy, sys\n"
         f"sys.argv = ['{script}', '--xla-opt-level', '{level}', '--help']\n"
-        "started = []\n"
-        "class Watch:\n"  # records whether JAX's backend module existed when XLA_FLAGS was first set
+        "class Watch:\n"  # prints XLA_FLAGS as they are when JAX's backend module is first imported
         "    def find_spec(self, name, *args):\n"
-        "        if name == 'jax._src.xla_bridge': started.append(os.environ.get('XLA_FLAGS', ''))\n"
+        "        if name == 'jax._src.xla_bridge':\n"  # seen: report and stop (the rest would only cost seconds)
+        "            print('FLAGS-AT-JAX-IMPORT', os.environ.get('XLA_FLAGS', ''), flush=True)\n"
+        "            os._exit(0)\n"
         "sys.meta_path.insert(0, Watch())\n"
-        f"sys.path.insert(0, '.')\ntry:\n    runpy.run_path('{script}', run_name='__main__')\nexcept SystemExit:\n    pass\n"
-        "print('FLAGS-AT-JAX-IMPORT', started[0])\n"
+        f"sys.path.insert(0, '.')\nrunpy.run_path('{script}', run_name='__main__')\n"
+        "print('JAX-NEVER-IMPORTED')\n"
     )
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     out = subprocess.run([sys.executable, "-c", probe], cwd=REPO, capture_output=True, text=True, timeout=120, env=env)

@@ -189,13 +189,14 @@ def test_forward_is_the_shared_mlp():
     obs = obs.at[3, 4:7].set(jnp.array([-1 / 11, -1 / 11, 1.0], jnp.float32))  # a carrying observation
     for encoding in ppo.OBS_ENCODINGS:
         algo = PPO(dataclasses.replace(ppo.DEFAULT, obs_encoding=encoding), env, params)
-        networks = algo.unflatten(algo.init(jax.random.PRNGKey(1)).params)
-        features = ppo.encode_observation(obs, env, encoding)
+        networks = algo.unflatten(jax.jit(algo.init)(jax.random.PRNGKey(1)).params)
+        features = jax.jit(ppo.encode_observation, static_argnums=(1, 2))(obs, env, encoding)
         assert features.shape[-1] == ppo.encoded_size(env, encoding)
         for name, out in (("actor", 4), ("critic", 1)):
             mlp = MLP(algo.config.hidden_sizes, out, algo.config.activation)
+            # Jitted: op by op, the same check compiles every primitive on its own (seconds on 2 cores).
             np.testing.assert_allclose(
-                algo.forward(networks[name], obs), mlp.apply(networks[name], features), atol=1e-5
+                jax.jit(algo.forward)(networks[name], obs), jax.jit(mlp.apply)(networks[name], features), atol=1e-5
             )
         assert np.array_equal(algo.unflatten(algo.flatten(networks))["actor"]["params"]["Dense_0"]["kernel"],
                               networks["actor"]["params"]["Dense_0"]["kernel"])
