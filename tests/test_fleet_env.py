@@ -53,8 +53,8 @@ def test_fleet_32x32_map():
     (". . 0\n. . .\n. . G", "no start"),
     ("S . 0\n. . .\n. . .", "no delivery station"),
     ("S . .\n. . .\n. . G", "no item"),
-    ("S 0 0\n. . .\n. . G", r"'0' is used twice: at cell \(0, 1\) and at cell \(0, 2\)"),
-    ("S 0 2\n. . .\n. . G", "'1' is skipped"),
+    ("S 0 0\n. . .\n. . G", r"'0' appears twice: at \(0, 1\) and at \(0, 2\)"),
+    ("S 0 2\n. . .\n. . G", "'1' is missing"),
     ("S . #\n. . #\nG # 0", r"item '0' at cell \(2, 2\) is unreachable from start 0 at cell \(0, 0\)"),
     ("S . 0\n# # .\nS # G", r"station 0 at cell \(2, 2\) is unreachable from start 1 at cell \(2, 0\)"),
 ])

@@ -17,7 +17,7 @@ import dataclasses
 
 import numpy as np
 
-from wrl_jax.envs.warehouse.layout import FREE, GOAL, ITEM_MARKERS, SHELF, START, bfs_distances
+from wrl_jax.envs.warehouse.layout import FREE, GOAL, ITEM_MARKERS, SHELF, START, bfs_distances, scan_cells
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -86,43 +86,7 @@ def parse_fleet(ascii_map: str) -> FleetLayout:
             character, no ``S``, no ``G``, no item, an item marker used twice
             or skipped, an item or station unreachable from some start.
     """
-    lines = [line for line in (raw.strip() for raw in ascii_map.strip("\n").splitlines()) if line]
-    if not lines:
-        raise ValueError("empty map: expected rows of cells")
-    grid = [[ch for ch in line if not ch.isspace()] for line in lines]
-    width = len(grid[0])
-    for row, cells in enumerate(grid):
-        if len(cells) != width:
-            raise ValueError(f"ragged map: row {row} has {len(cells)} cells, row 0 has {width}")
-    if len(grid) != width:
-        raise ValueError(f"map must be square: {len(grid)} rows of {width} cells")
-
-    shelves = np.zeros((width, width), dtype=bool)
-    starts, stations, markers = [], [], {}
-    for row, cells in enumerate(grid):
-        for col, ch in enumerate(cells):
-            if ch == SHELF:
-                shelves[row, col] = True
-            elif ch == START:
-                starts.append((row, col))
-            elif ch == GOAL:
-                stations.append((row, col))
-            elif ch in ITEM_MARKERS:
-                if ch in markers:
-                    raise ValueError(
-                        f"item marker {ch!r} is used twice: at cell {markers[ch]} and at cell {(row, col)}"
-                    )
-                markers[ch] = (row, col)
-            elif ch != FREE:
-                raise ValueError(
-                    f"unknown character {ch!r} at cell {(row, col)}: "
-                    f"expected 'S', 'G', '#', '.', or an item marker 0-9a-zA-Z"
-                )
-    ranks = sorted(ITEM_MARKERS.index(ch) for ch in markers)
-    if ranks != list(range(len(ranks))):
-        missing = ITEM_MARKERS[next(i for i, rank in enumerate(ranks) if rank != i)]
-        raise ValueError(f"item markers must run 0, 1, 2, ... without gaps; {missing!r} is skipped")
-    items = [markers[ITEM_MARKERS[i]] for i in range(len(ranks))]
+    shelves, starts, stations, items = scan_cells(ascii_map)
     return FleetLayout(shelves=shelves, starts=np.array(starts, dtype=np.int32).reshape(-1, 2),
                        stations=np.array(stations, dtype=np.int32).reshape(-1, 2),
                        items=np.array(items, dtype=np.int32).reshape(-1, 2))

@@ -84,6 +84,33 @@ def parse(ascii_map: str) -> Layout:
             missing or repeated start/goal/item marker, no items, an item
             marker skipped in the sequence, an unreachable item or goal.
     """
+    shelves, starts, goals, items = scan_cells(ascii_map)
+    for name, found in (("start 'S'", starts), ("goal 'G'", goals)):
+        if not found:
+            raise ValueError(f"map has no {name}")
+        if len(found) > 1:
+            raise ValueError(f"map has {len(found)} of {name}, at cells {found}; expected exactly one")
+    if not items:
+        raise ValueError("map has no items: mark item cells with 0-9, a-z, A-Z")
+    return Layout(
+        shelves=shelves,
+        start=np.array(starts[0], dtype=np.int32),
+        goal=np.array(goals[0], dtype=np.int32),
+        items=np.array(items, dtype=np.int32).reshape(-1, 2),
+    )
+
+
+def scan_cells(ascii_map: str) -> tuple[np.ndarray, list, list, list]:
+    """``(shelves, starts, goals, items)`` of an ASCII map: the grid checks and the cell scan both parsers share.
+
+    ``starts`` and ``goals`` are every ``S`` and ``G`` cell in row-major order (a single-robot
+    map must have one of each, a fleet map any number: the callers check), ``items`` the item
+    cells in marker order.
+
+    Raises:
+        ValueError: empty map, ragged or non-square grid, unknown character (with its cell),
+            an item marker used twice (both cells) or a marker skipped in the sequence.
+    """
     lines = [line for line in (raw.strip() for raw in ascii_map.strip("\n").splitlines()) if line]
     if not lines:
         raise ValueError("empty map: expected rows of cells")
@@ -116,13 +143,6 @@ def parse(ascii_map: str) -> Layout:
                     f"unknown character {ch!r} at cell {(row, col)}: "
                     f"expected one of 'S', 'G', '#', '.', or an item marker 0-9a-zA-Z"
                 )
-    for name, found in (("start 'S'", starts), ("goal 'G'", goals)):
-        if not found:
-            raise ValueError(f"map has no {name}")
-        if len(found) > 1:
-            raise ValueError(f"map has {len(found)} of {name}, at cells {found}; expected exactly one")
-    if not markers:
-        raise ValueError("map has no items: mark item cells with 0-9, a-z, A-Z")
     ranks = sorted(ITEM_MARKERS.index(ch) for ch in markers)
     if ranks != list(range(len(ranks))):
         missing = ITEM_MARKERS[next(i for i, rank in enumerate(ranks) if rank != i)]
@@ -130,13 +150,7 @@ def parse(ascii_map: str) -> Layout:
             f"item markers must run 0, 1, 2, ... without gaps; {missing!r} is missing "
             f"but later markers are present"
         )
-    items = [markers[ITEM_MARKERS[i]] for i in range(len(ranks))]
-    return Layout(
-        shelves=shelves,
-        start=np.array(starts[0], dtype=np.int32),
-        goal=np.array(goals[0], dtype=np.int32),
-        items=np.array(items, dtype=np.int32).reshape(-1, 2),
-    )
+    return shelves, starts, goals, [markers[ITEM_MARKERS[i]] for i in range(len(ranks))]
 
 
 def validate(layout: Layout) -> None:
