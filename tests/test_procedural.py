@@ -370,6 +370,40 @@ def test_observation_is_the_fleet_robot_observation_with_off_grid_padding():
     np.testing.assert_array_equal(np.asarray(bumped_pos), [0, 3])
 
 
+def test_last_action_observation_is_the_previous_action_one_hot():
+    """``observe_last_action``: the plain observation, then the previous action one-hot (zeros after a reset);
+    the auto-reset's reset table and a terminated episode's reset show the zeros too."""
+    floor = np.zeros((3, 4), dtype=bool)
+    floor[1, 1] = True
+    layout = from_arrays(floor, (0, 0), (0, 2), [(0, 1)], max_shape=(6, 6), max_items=1)
+    plain_env, plain_params = make_from_layouts([layout], view_radius=1)
+    env, params = make_from_layouts([layout], view_radius=1, observe_last_action=True)
+    assert env.obs_size == plain_env.obs_size + 4 and env.observation_space(params).shape == (env.obs_size,)
+    assert env.static_config() != plain_env.static_config()
+
+    @jax.jit
+    def probe(params, plain_params):
+        obs, state = env.reset_to(0, 0, params)
+        plain_obs, plain_state = plain_env.reset_to(0, 0, plain_params)
+        seen, plain_seen = [obs], [plain_obs]
+        for action in (1, 3, 0, 3):  # down into the floor, right onto the shelf (a collision), up, right
+            obs, state, *_ = env.step(jax.random.key(0), state, jnp.int32(action), params)
+            plain_obs, plain_state, *_ = plain_env.step(jax.random.key(0), plain_state, jnp.int32(action),
+                                                        plain_params)
+            seen.append(obs)
+            plain_seen.append(plain_obs)
+        return jnp.stack(seen), jnp.stack(plain_seen), params.reset_obs[0, 0]
+
+    seen, plain_seen, reset_row = (np.asarray(x) for x in probe(params, plain_params))
+    np.testing.assert_array_equal(seen[:, :-4], plain_seen)  # the rest is the plain observation, bit for bit
+    expected = np.zeros((5, 4), np.float32)
+    expected[1, 1] = expected[2, 3] = expected[3, 0] = 1  # the last step picked up the item: still shown
+    expected[4, 3] = 1
+    np.testing.assert_array_equal(seen[:, -4:], expected)
+    np.testing.assert_array_equal(reset_row[-4:], np.zeros(4, np.float32))
+    np.testing.assert_array_equal(reset_row, seen[0])
+
+
 @pytest.mark.parametrize("view_radius", [0, 1, 2, 3])
 def test_bit_mask_observation_is_robot_observations_bit_for_bit(view_radius):
     """The packed-row window (V <= 2) equals the gathers of ``robot_observations`` on random states.

@@ -139,8 +139,11 @@ def test_bad_refresh_settings_fail_clearly(small, tmp_path):
         parse("ppo", ["--env", "Warehouse-8x8-v0", "--pool-refresh", "4", "--out", str(tmp_path / "a")])
     with pytest.raises(ValueError, match="--view-radius: fleet or procedural options"):
         parse("ppo", ["--env", "Warehouse-8x8-v0", "--view-radius", "1", "--out", str(tmp_path / "b")])
+    with pytest.raises(ValueError, match="--observe-last-action: procedural options"):
+        parse("ppo", ["--env", "Fleet-12x12-v0", "--observe-last-action", "True", "--out", str(tmp_path / "d")])
     command = parse("ppo", ["--env", "Procedural-Warehouse-v0", "--pool-size", "64", "--pool-refresh", "16",
                             "--view-radius", "1", "--out", str(tmp_path / "c")])
-    assert command.env.overrides() == {"pool_size": 64, "pool_refresh": 16, "view_radius": 1}
+    assert command.env.overrides() == {"pool_size": 64, "pool_refresh": 16, "view_radius": 1,
+                                       "observe_last_action": True}  # the preset's (ppo.PROCEDURAL_ENV_DEFAULTS)
     algo = build(command.spec, command.config, command.env)
     assert (algo.env.pool_size, algo.env.pool_refresh, algo.env.view_radius) == (64, 16, 1)

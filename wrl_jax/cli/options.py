@@ -53,6 +53,8 @@ class EnvOptions:
     """procedural environments: layouts in the pool episodes reset from"""
     pool_refresh: int | None = None
     """procedural environments: pool slots renewed with fresh layouts before every update (0: never)"""
+    observe_last_action: bool | None = None
+    """procedural environments: the previous action, one-hot, in the observation (a one-step memory)"""
 
     def overrides(self) -> dict[str, Any]:
         """Keyword overrides for ``wrl_jax.make``: only what differs from the registered environment."""
@@ -214,6 +216,7 @@ FAMILY_OPTIONS = {
     "shaping": ("fleet",),
     "pool_size": ("procedural",),
     "pool_refresh": ("procedural",),
+    "observe_last_action": ("procedural",),
 }
 """Environment flags that only some families take (refused on the others before anything is built)."""
 

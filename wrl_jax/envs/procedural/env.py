@@ -21,6 +21,10 @@ switch. What differs is where the layout comes from and what is observed:
   egocentric window (shelves and off-grid, other robots (always empty here),
   the current target). ``observe_map=True`` appends the full padded map in
   the same three channels. No distance field or planner output is observed.
+  ``observe_last_action=True`` appends the robot's own previous action, one-hot
+  (four zeros on an episode's first step): a one-step memory that lets a
+  feed-forward policy tell where it came from, so that a greedy policy need not
+  repeat the two-cell back-and-forth a memoryless one falls into (docs/procedural.md).
   For ``V <= 2`` (and walled rows of at most 32 cells) the window is computed
   from the packed rows as int32 bit masks (:func:`wrl_jax.core.observation.row_shelf_masks`,
   then the fleet's :func:`~wrl_jax.core.observation.expand_observations`), bit for bit
@@ -107,6 +111,8 @@ class ProceduralParams:
 class ProceduralState:
     """One episode. ``walls`` ``(H + 2V, words)`` uint32 is this episode's floor, a copy from ``params.walls``.
 
+    ``last_action`` is the action of the previous step (-1 on an episode's first).
+
     The floor's walled rows packed in words (:func:`wrl_jax.core.observation.wall_rows`: shelves,
     off-grid padding and a ``V``-cell wall ring set); :meth:`ProceduralWarehouse.blocked` unpacks it.
     """
@@ -122,6 +128,7 @@ class ProceduralState:
     carrying: jax.Array
     time: jax.Array
     optimal: jax.Array
+    last_action: jax.Array
 
 
 class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
@@ -143,6 +150,8 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
             given layouts); refreshes draw from the same seed's training stream.
         pool_refresh: slots of the pool a learner renews before every update
             (:meth:`params_for_update`; 0: the pool never changes while training).
+        observe_last_action: append the previous action, one-hot (zeros on an episode's
+            first step), after the robot observation (and before the map, if observed).
     """
 
     num_actions = NUM_ACTIONS
@@ -150,7 +159,7 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
 
     def __init__(self, default_params: ProceduralParams | None = None, *, generator: GeneratorConfig,
                  pool_size: int, view_radius: int = 2, observe_map: bool = False, observe_window: bool = True,
-                 pool_seed: int | None = None, pool_refresh: int = 0):
+                 pool_seed: int | None = None, pool_refresh: int = 0, observe_last_action: bool = False):
         if not 1 <= int(pool_size) <= MAX_POOL_SIZE:
             raise ValueError(f"pool_size must be in 1..{MAX_POOL_SIZE}, got {pool_size}")
         if not 0 <= int(pool_refresh) <= int(pool_size):
@@ -166,6 +175,7 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         self.observe_window = bool(observe_window)
         self.pool_seed = None if pool_seed is None else int(pool_seed)
         self.pool_refresh = int(pool_refresh)
+        self.observe_last_action = bool(observe_last_action)
         if default_params is not None:
             self.check_params(default_params)
         super().__init__(default_params)
@@ -180,12 +190,13 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
 
     def static_config(self) -> tuple:
         return (self.generator, self.pool_size, self.view_radius, self.observe_map, self.observe_window,
-                self.pool_seed, self.pool_refresh)
+                self.pool_seed, self.pool_refresh, self.observe_last_action)
 
     def __repr__(self) -> str:
         return (f"ProceduralWarehouse(max_shape={self.max_shape}, pool_size={self.pool_size}, "
                 f"view_radius={self.view_radius}, observe_map={self.observe_map}, "
                 f"observe_window={self.observe_window}, pool_refresh={self.pool_refresh}, "
+                f"observe_last_action={self.observe_last_action}, "
                 f"family={self.generator.family!r})")
 
     def check_params(self, params: ProceduralParams) -> None:
@@ -211,6 +222,7 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
     @property
     def obs_size(self) -> int:
         extra = 3 * self.max_shape[0] * self.max_shape[1] if self.observe_map else 0
+        extra += NUM_ACTIONS if self.observe_last_action else 0
         return (observation_size(self.view_radius) if self.observe_window else 5) + extra
 
     def observation_space(self, params: ProceduralParams | None = None) -> spaces.Box:
@@ -283,7 +295,7 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         time = state.time + 1
         terminated = delivered
         truncated = (time >= params.max_steps) & ~terminated
-        next_state = state.replace(pos=next_pos, carrying=state.carrying | picked_up, time=time)
+        next_state = state.replace(pos=next_pos, carrying=state.carrying | picked_up, time=time, last_action=action)
         info = {"collision": collision, "wall_bump": wall_bump, "picked_up": picked_up, "delivered": delivered}
         return self.observe(next_state), next_state, reward, terminated, truncated, info
 
@@ -295,7 +307,10 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
 
     # ------------------------------------------------------------ observation
     def observe(self, state: ProceduralState) -> jax.Array:
-        """``(obs_size,)`` float32: the fleet robot observation for one robot, then the map if configured.
+        """``(obs_size,)`` float32: the fleet robot observation for one robot, then what is configured.
+
+        After the robot observation: the previous action one-hot (``observe_last_action``),
+        then the full map (``observe_map``).
 
         The map's channels: 0 shelves and off-grid, 1 the robot itself (the
         window has it at its centre; a full map must say where), 2 the target.
@@ -313,6 +328,9 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         else:
             table = jnp.asarray(coordinate_table(size))
             obs = jnp.concatenate([table[state.pos], table[target], state.carrying.astype(jnp.float32)[None]])
+        if self.observe_last_action:
+            # one_hot of -1 (no action yet) is all zeros.
+            obs = jnp.concatenate([obs, jax.nn.one_hot(state.last_action, NUM_ACTIONS, dtype=jnp.float32)])
         if not self.observe_map:
             return obs
         rows = jnp.arange(self.max_shape[0])[:, None]
@@ -454,6 +472,7 @@ def initial_state(layout_index: jax.Array, item_index: jax.Array, pool: LayoutPo
         carrying=jnp.zeros((), dtype=bool),
         time=jnp.zeros((), dtype=jnp.int32),
         optimal=pool.optimal[layout_index, item_index],
+        last_action=jnp.int32(-1),
     )
 
 
