@@ -404,6 +404,42 @@ def test_last_action_observation_is_the_previous_action_one_hot():
     np.testing.assert_array_equal(reset_row, seen[0])
 
 
+def test_visited_channel_marks_the_trail_since_the_current_target_was_set():
+    """``observe_visited``: a window channel of the cells stood on since the episode's start or the pickup."""
+    floor = np.zeros((3, 4), dtype=bool)
+    floor[1, 1] = True
+    layout = from_arrays(floor, (0, 0), (0, 2), [(0, 1)], max_shape=(6, 6), max_items=1)
+    plain_env, plain_params = make_from_layouts([layout], view_radius=1)
+    env, params = make_from_layouts([layout], view_radius=1, observe_visited=True, observe_last_action=True)
+    assert env.obs_size == plain_env.obs_size + 4 + 9
+
+    @jax.jit
+    def probe(params, plain_params):
+        obs, state = env.reset_to(0, 0, params)
+        plain_obs, plain_state = plain_env.reset_to(0, 0, plain_params)
+        seen, plain_seen = [obs], [plain_obs]
+        for action in (1, 0, 3):  # down, back up to the start, right onto the item (the pickup)
+            obs, state, *_ = env.step(jax.random.key(0), state, jnp.int32(action), params)
+            plain_obs, plain_state, *_ = plain_env.step(jax.random.key(0), plain_state, jnp.int32(action),
+                                                        plain_params)
+            seen.append(obs)
+            plain_seen.append(plain_obs)
+        return jnp.stack(seen), jnp.stack(plain_seen), params.reset_obs[0, 0]
+
+    seen, plain_seen, reset_row = (np.asarray(x) for x in probe(params, plain_params))
+    np.testing.assert_array_equal(seen[:, :plain_env.obs_size], plain_seen)
+    visited = seen[:, -9:].reshape(4, 3, 3)
+    expected = np.zeros((4, 3, 3), np.float32)
+    expected[0, 1, 1] = 1  # the start
+    expected[1, 0, 1] = expected[1, 1, 1] = 1  # at (1, 0): the start above, the robot's own cell
+    expected[2, 1, 1] = expected[2, 2, 1] = 1  # back at (0, 0): its cell, and (1, 0) below
+    expected[3, 1, 1] = 1  # picked up at (0, 1): a new trail, its first cell
+    np.testing.assert_array_equal(visited, expected)
+    np.testing.assert_array_equal(reset_row, seen[0])
+    with pytest.raises(ValueError, match="observe_visited needs the bit-mask window"):
+        make_from_layouts([layout], view_radius=3, observe_visited=True)
+
+
 @pytest.mark.parametrize("view_radius", [0, 1, 2, 3])
 def test_bit_mask_observation_is_robot_observations_bit_for_bit(view_radius):
     """The packed-row window (V <= 2) equals the gathers of ``robot_observations`` on random states.

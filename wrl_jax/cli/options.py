@@ -55,6 +55,8 @@ class EnvOptions:
     """procedural environments: pool slots renewed with fresh layouts before every update (0: never)"""
     observe_last_action: bool | None = None
     """procedural environments: the previous action, one-hot, in the observation (a one-step memory)"""
+    observe_visited: bool | None = None
+    """procedural environments: a window channel of the cells visited since the current target was set"""
 
     def overrides(self) -> dict[str, Any]:
         """Keyword overrides for ``wrl_jax.make``: only what differs from the registered environment."""
@@ -217,6 +219,7 @@ FAMILY_OPTIONS = {
     "pool_size": ("procedural",),
     "pool_refresh": ("procedural",),
     "observe_last_action": ("procedural",),
+    "observe_visited": ("procedural",),
 }
 """Environment flags that only some families take (refused on the others before anything is built)."""
 

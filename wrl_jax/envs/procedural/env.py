@@ -25,6 +25,10 @@ switch. What differs is where the layout comes from and what is observed:
   (four zeros on an episode's first step): a one-step memory that lets a
   feed-forward policy tell where it came from, so that a greedy policy need not
   repeat the two-cell back-and-forth a memoryless one falls into (docs/procedural.md).
+  ``observe_visited=True`` appends a fourth window channel: 1.0 on the cells the
+  robot stood on since its current target was set (the episode's start, or the
+  pickup), kept as packed rows like the floor's (``state.visited``): memory of
+  any loop, not only a two-cell one.
   For ``V <= 2`` (and walled rows of at most 32 cells) the window is computed
   from the packed rows as int32 bit masks (:func:`wrl_jax.core.observation.row_shelf_masks`,
   then the fleet's :func:`~wrl_jax.core.observation.expand_observations`), bit for bit
@@ -56,6 +60,7 @@ from wrl_jax.core.observation import (
     wall_bit,
     wall_rows,
     wall_words,
+    window_size,
 )
 from wrl_jax.core.random import random_words, threefry2x32, threefry_key_data
 from wrl_jax.envs.procedural.generators import GeneratorConfig, generate_batch
@@ -111,7 +116,9 @@ class ProceduralParams:
 class ProceduralState:
     """One episode. ``walls`` ``(H + 2V, words)`` uint32 is this episode's floor, a copy from ``params.walls``.
 
-    ``last_action`` is the action of the previous step (-1 on an episode's first).
+    ``last_action`` is the action of the previous step (-1 on an episode's first). ``visited``
+    ``(H + 2V, 1)`` uint32, in the floor's packed layout, marks the cells stood on since the current
+    target was set (``(0, 1)``, nothing, unless the environment observes it).
 
     The floor's walled rows packed in words (:func:`wrl_jax.core.observation.wall_rows`: shelves,
     off-grid padding and a ``V``-cell wall ring set); :meth:`ProceduralWarehouse.blocked` unpacks it.
@@ -129,6 +136,7 @@ class ProceduralState:
     time: jax.Array
     optimal: jax.Array
     last_action: jax.Array
+    visited: jax.Array
 
 
 class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
@@ -152,6 +160,9 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
             (:meth:`params_for_update`; 0: the pool never changes while training).
         observe_last_action: append the previous action, one-hot (zeros on an episode's
             first step), after the robot observation (and before the map, if observed).
+        observe_visited: append the window's cells visited since the current target was set
+            (``(2V+1)^2`` values, after the previous action); needs the bit-mask window
+            (``V <= 2``, padded width at most ``32 - 2V``).
     """
 
     num_actions = NUM_ACTIONS
@@ -159,7 +170,8 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
 
     def __init__(self, default_params: ProceduralParams | None = None, *, generator: GeneratorConfig,
                  pool_size: int, view_radius: int = 2, observe_map: bool = False, observe_window: bool = True,
-                 pool_seed: int | None = None, pool_refresh: int = 0, observe_last_action: bool = False):
+                 pool_seed: int | None = None, pool_refresh: int = 0, observe_last_action: bool = False,
+                 observe_visited: bool = False):
         if not 1 <= int(pool_size) <= MAX_POOL_SIZE:
             raise ValueError(f"pool_size must be in 1..{MAX_POOL_SIZE}, got {pool_size}")
         if not 0 <= int(pool_refresh) <= int(pool_size):
@@ -176,6 +188,11 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         self.pool_seed = None if pool_seed is None else int(pool_seed)
         self.pool_refresh = int(pool_refresh)
         self.observe_last_action = bool(observe_last_action)
+        self.observe_visited = bool(observe_visited)
+        if self.observe_visited and not (self.observe_window and self.bit_windows):
+            raise ValueError(f"observe_visited needs the bit-mask window: view_radius <= 2 and a padded width of at "
+                             f"most {32 - 2 * self.view_radius}; got view_radius={self.view_radius}, max_shape="
+                             f"{self.max_shape}, observe_window={self.observe_window}")
         if default_params is not None:
             self.check_params(default_params)
         super().__init__(default_params)
@@ -190,13 +207,13 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
 
     def static_config(self) -> tuple:
         return (self.generator, self.pool_size, self.view_radius, self.observe_map, self.observe_window,
-                self.pool_seed, self.pool_refresh, self.observe_last_action)
+                self.pool_seed, self.pool_refresh, self.observe_last_action, self.observe_visited)
 
     def __repr__(self) -> str:
         return (f"ProceduralWarehouse(max_shape={self.max_shape}, pool_size={self.pool_size}, "
                 f"view_radius={self.view_radius}, observe_map={self.observe_map}, "
                 f"observe_window={self.observe_window}, pool_refresh={self.pool_refresh}, "
-                f"observe_last_action={self.observe_last_action}, "
+                f"observe_last_action={self.observe_last_action}, observe_visited={self.observe_visited}, "
                 f"family={self.generator.family!r})")
 
     def check_params(self, params: ProceduralParams) -> None:
@@ -223,6 +240,7 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
     def obs_size(self) -> int:
         extra = 3 * self.max_shape[0] * self.max_shape[1] if self.observe_map else 0
         extra += NUM_ACTIONS if self.observe_last_action else 0
+        extra += window_size(self.view_radius) ** 2 if self.observe_visited else 0
         return (observation_size(self.view_radius) if self.observe_window else 5) + extra
 
     def observation_space(self, params: ProceduralParams | None = None) -> spaces.Box:
@@ -239,7 +257,7 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         :func:`draw_episode` (the reset is paid on every step: see there for why it is written out).
         """
         layout_index, item_index = draw_episode(key, params.pool.layouts.num_items, self.pool_size)
-        state = initial_state(layout_index, item_index, params.pool, params.walls)
+        state = initial_state(layout_index, item_index, params.pool, params.walls, self.visited_rows)
         return params.reset_obs[layout_index, item_index], state
 
     def reset_to(self, layout_index: jax.Array | int, item_index: jax.Array | int,
@@ -247,7 +265,7 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         """A fresh episode on a chosen slot and item (deterministic evaluation)."""
         params = self.default_params if params is None else params
         state = initial_state(jnp.asarray(layout_index, jnp.int32), jnp.asarray(item_index, jnp.int32),
-                              params.pool, params.walls)
+                              params.pool, params.walls, self.visited_rows)
         return self.observe(state), state
 
     # ------------------------------------------------------------ step
@@ -295,7 +313,11 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         time = state.time + 1
         terminated = delivered
         truncated = (time >= params.max_steps) & ~terminated
-        next_state = state.replace(pos=next_pos, carrying=state.carrying | picked_up, time=time, last_action=action)
+        visited = state.visited
+        if self.observe_visited:  # a new target (the pickup) starts a new trail
+            visited = mark_cell(jnp.where(picked_up, jnp.uint32(0), visited), next_pos, self.view_radius)
+        next_state = state.replace(pos=next_pos, carrying=state.carrying | picked_up, time=time, last_action=action,
+                                   visited=visited)
         info = {"collision": collision, "wall_bump": wall_bump, "picked_up": picked_up, "delivered": delivered}
         return self.observe(next_state), next_state, reward, terminated, truncated, info
 
@@ -310,7 +332,8 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         """``(obs_size,)`` float32: the fleet robot observation for one robot, then what is configured.
 
         After the robot observation: the previous action one-hot (``observe_last_action``),
-        then the full map (``observe_map``).
+        the visited cells of the window (``observe_visited``, row-major like the window's
+        channels), then the full map (``observe_map``).
 
         The map's channels: 0 shelves and off-grid, 1 the robot itself (the
         window has it at its centre; a full map must say where), 2 the target.
@@ -331,6 +354,10 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         if self.observe_last_action:
             # one_hot of -1 (no action yet) is all zeros.
             obs = jnp.concatenate([obs, jax.nn.one_hot(state.last_action, NUM_ACTIONS, dtype=jnp.float32)])
+        if self.observe_visited:
+            mask = row_shelf_masks(state.visited, state.pos[None], self.view_radius)[0]
+            bits = np.arange(window_size(self.view_radius) ** 2, dtype=np.int32)
+            obs = jnp.concatenate([obs, ((mask >> bits) & 1).astype(jnp.float32)])
         if not self.observe_map:
             return obs
         rows = jnp.arange(self.max_shape[0])[:, None]
@@ -339,6 +366,11 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         target_cell = (rows == target[0]) & (cols == target[1])
         full_map = jnp.stack([self.blocked(state), robot, target_cell]).astype(jnp.float32)
         return jnp.concatenate([obs, full_map.reshape(-1)])
+
+    @property
+    def visited_rows(self) -> int:
+        """Rows of ``state.visited``: the walled floor's ``H + 2V`` when observed, else 0 (an empty array)."""
+        return self.max_shape[0] + 2 * self.view_radius if self.observe_visited else 0
 
     @property
     def bit_windows(self) -> bool:
@@ -360,7 +392,8 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         slots = jnp.arange(pool.size, dtype=jnp.int32)[:, None]
         items = jnp.arange(pool.layouts.items.shape[-2], dtype=jnp.int32)[None, :]
         slots, items = jnp.broadcast_arrays(slots, items)
-        first = jax.vmap(jax.vmap(initial_state, in_axes=(0, 0, None, None)),
+        first_state = partial(initial_state, visited_rows=self.visited_rows)
+        first = jax.vmap(jax.vmap(first_state, in_axes=(0, 0, None, None)),
                          in_axes=(0, 0, None, None))(slots, items, pool, walls)
         return jax.vmap(jax.vmap(self.observe))(first)
 
@@ -454,12 +487,18 @@ def draw_episode(key: jax.Array, num_items: jax.Array, pool_size: int) -> tuple[
 
 
 def initial_state(layout_index: jax.Array, item_index: jax.Array, pool: LayoutPool,
-                  walls: jax.Array) -> ProceduralState:
+                  walls: jax.Array, visited_rows: int = 0) -> ProceduralState:
     """The first state of the episode on pool slot ``layout_index`` with its item ``item_index``.
 
-    ``walls`` is the pool's :meth:`ProceduralWarehouse.pool_walls` (``params.walls``).
+    ``walls`` is the pool's :meth:`ProceduralWarehouse.pool_walls` (``params.walls``);
+    ``visited_rows`` (static) is :attr:`ProceduralWarehouse.visited_rows`: with rows, the start is
+    the trail's first cell.
     """
     layout = jax.tree.map(lambda leaf: leaf[layout_index], pool.layouts)
+    view_radius = (walls.shape[-2] - pool.layouts.blocked.shape[-2]) // 2
+    visited = jnp.zeros((visited_rows, 1), dtype=jnp.uint32)
+    if visited_rows:
+        visited = mark_cell(visited, layout.start, view_radius)
     return ProceduralState(
         walls=walls[layout_index],
         height=layout.height,
@@ -473,7 +512,15 @@ def initial_state(layout_index: jax.Array, item_index: jax.Array, pool: LayoutPo
         time=jnp.zeros((), dtype=jnp.int32),
         optimal=pool.optimal[layout_index, item_index],
         last_action=jnp.int32(-1),
+        visited=visited,
     )
+
+
+def mark_cell(rows: jax.Array, cell: jax.Array, view_radius: int) -> jax.Array:
+    """``rows`` (packed like :func:`~wrl_jax.core.observation.wall_rows`, one word a row) with floor cell ``cell`` set."""
+    row = cell[0] + view_radius
+    bit = jnp.left_shift(jnp.uint32(1), (cell[1] + view_radius).astype(jnp.uint32))
+    return rows.at[row, 0].set(rows[row, 0] | bit)
 
 
 @partial(jax.jit, static_argnums=0)
