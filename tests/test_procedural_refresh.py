@@ -144,6 +144,6 @@ def test_bad_refresh_settings_fail_clearly(small, tmp_path):
     command = parse("ppo", ["--env", "Procedural-Warehouse-v0", "--pool-size", "64", "--pool-refresh", "16",
                             "--view-radius", "1", "--out", str(tmp_path / "c")])
     assert command.env.overrides() == {"pool_size": 64, "pool_refresh": 16, "view_radius": 1,
-                                       "observe_last_action": True}  # the preset's (ppo.PROCEDURAL_ENV_DEFAULTS)
+                                       **ppo.PROCEDURAL_ENV_DEFAULTS}  # the preset's environment defaults
     algo = build(command.spec, command.config, command.env)
     assert (algo.env.pool_size, algo.env.pool_refresh, algo.env.view_radius) == (64, 16, 1)
