@@ -22,7 +22,9 @@ then ``--repeats`` timed calls, each ``block_until_ready``-ed, median reported):
      each environment on its own layout, with the 80-value fleet robot observation (its window
      from bit masks of the episode's packed floor rows);
    * ``procedural-scalars``: the same with ``observe_window=False`` (the five scalars only): per-env
-     layouts without the window, to separate the two costs.
+     layouts without the window, to separate the two costs;
+   * ``procedural-memory``: ``procedural`` with PPO's preset observation (``ppo.PROCEDURAL_ENV_DEFAULTS``:
+     the previous action and the trail channel, 109 values), what ``train_ppo.py`` steps.
 4. The pool's memory per layout, and a refresh's cost against a rollout's.
 
 Run from the repository root::
@@ -54,6 +56,7 @@ import numpy as np
 
 import wrl_jax
 from wrl_jax import maps
+from wrl_jax.agents.ppo import PROCEDURAL_ENV_DEFAULTS
 from wrl_jax.envs.procedural import generators
 from wrl_jax.envs.procedural.layout import from_layout
 from wrl_jax.envs.procedural.pool import (
@@ -169,8 +172,10 @@ def bench_steps(batch: int, horizon: int, repeats: int, pool_size: int) -> tuple
     one_env, one_params = make_from_layouts([study])
     gen_env, gen_params = make_procedural(pool_size=pool_size)
     scalar_env, scalar_params = make_procedural(pool_size=pool_size, observe_window=False)
+    memory_env, memory_params = make_procedural(pool_size=pool_size, **PROCEDURAL_ENV_DEFAULTS)
     cases = {"fixed": (fixed_env, fixed_params), "procedural-1": (one_env, one_params),
-             "procedural": (gen_env, gen_params), "procedural-scalars": (scalar_env, scalar_params)}
+             "procedural": (gen_env, gen_params), "procedural-scalars": (scalar_env, scalar_params),
+             "procedural-memory": (memory_env, memory_params)}
     runs = {}
     for name, (env, params) in cases.items():
         keys = jax.random.split(jax.random.key(1), batch)
