@@ -135,6 +135,14 @@ def test_a_fleet_run_reports_the_planners_beside_the_policy(fleet_run):
         assert isinstance(ev[key], float) and ev[key] >= 0.0, key
     assert ev["episodes_per_seed"] >= 100 and len(ev["per_seed"]) == 2 and ev["num_robots"] == 2
     assert 0.0 < ev["pibt_throughput"] <= ev["upper_bound"] * 1.05
+    # The sampled policy's own counts: per seed (their mean is the overall figure), and its seeds at PIBT.
+    per_seed_sampled = [row["sampled_throughput"] for row in ev["per_seed"]]
+    assert np.mean(per_seed_sampled) == pytest.approx(ev["sampled_throughput"], rel=1e-9)
+    assert [row["sampled_vs_pibt"] for row in ev["per_seed"]] == pytest.approx(
+        [t / ev["pibt_throughput"] for t in per_seed_sampled])
+    assert ev["sampled_seeds_at_least_pibt"] == sum(t >= ev["pibt_throughput"] for t in per_seed_sampled)
+    assert ev["sampled_rates"]["blocks_per_100"] == pytest.approx(
+        np.mean([row["sampled_blocks_per_100"] for row in ev["per_seed"]]))
     # The planners' numbers are those of `python -m wrl_jax.plan` on the same 100 shifts.
     from wrl_jax.cli.plan import run_plan
 
@@ -143,6 +151,7 @@ def test_a_fleet_run_reports_the_planners_beside_the_policy(fleet_run):
     assert (out / fleet_evaluation.GIF_NAME).stat().st_size > 0
     report = (out / "evaluation.md").read_text()
     assert "PIBT on the same shifts" in report and "| seed |" in report
+    assert "sampled policy: robot blocks per robot per 100 steps" in report
     assert summary["env_overrides"]["num_robots"] == 2 and summary["config"]["critic"] == "centralized"
     assert "PIBT" in stdout
 

@@ -159,13 +159,16 @@ def final_report(context: FinalContext) -> dict[str, Any]:
     pibt_episode = _episode_throughput(planners["pibt"], horizon)
     pibt_mean = float(pibt_episode.mean())
     bound = float(env.num_robots / metrics.mean_round_trip(params))
+    sampled_means = _episode_throughput(sampled, horizon).mean(axis=1) if sampled is not None else None
     per_seed = []
     for s, seed in enumerate(context.seeds):
         row = {"seed": int(seed), "throughput": _interval(per_episode[s]),
                **_rates({k: v[s] for k, v in greedy.items()}, horizon),
                "vs_pibt": float(seed_means[s] / pibt_mean) if pibt_mean > 0 else None}
         if sampled is not None:
-            row["sampled_throughput"] = float(_episode_throughput(sampled, horizon)[s].mean())
+            row["sampled_throughput"] = float(sampled_means[s])
+            row["sampled_vs_pibt"] = float(sampled_means[s] / pibt_mean) if pibt_mean > 0 else None
+            row["sampled_blocks_per_100"] = _rates({k: v[s] for k, v in sampled.items()}, horizon)["blocks_per_100"]
         per_seed.append(row)
     report: dict[str, Any] = {
         "num_robots": int(env.num_robots),
@@ -184,6 +187,11 @@ def final_report(context: FinalContext) -> dict[str, Any]:
         "seeds_at_least_95pct_pibt": int((seed_means >= 0.95 * pibt_mean).sum()),
         **_rates(greedy, horizon),
         "pibt_rates": _rates(planners["pibt"], horizon),
+        # The sampled policy's own counts: its blocks, and how many seeds reach PIBT with it.
+        "sampled_rates": _rates(sampled, horizon) if sampled is not None else None,
+        "sampled_seeds_at_least_pibt": int((sampled_means >= pibt_mean).sum()) if sampled is not None else None,
+        "sampled_seeds_at_least_95pct_pibt": (int((sampled_means >= 0.95 * pibt_mean).sum())
+                                              if sampled is not None else None),
         "per_seed": per_seed,
         "unit": "deliveries per step, all robots; *_per_100: events per robot per 100 steps",
     }
@@ -212,6 +220,17 @@ def _write_gif(context: FinalContext, horizon: int):
 
 
 # ------------------------------------------------------------------ reports
+def _sampled_rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
+    """The sampled policy's seeds at PIBT and blocks (absent from summaries written before they were counted)."""
+    rates = summary.get("sampled_rates")
+    if not rates:
+        return []
+    return [("sampled policy: seeds at least PIBT / at least 95 % of it",
+             f"{summary['sampled_seeds_at_least_pibt']} / {summary['sampled_seeds_at_least_95pct_pibt']} "
+             f"of {len(summary['per_seed'])}"),
+            ("sampled policy: robot blocks per robot per 100 steps", f"{rates['blocks_per_100']:.2f}")]
+
+
 def format_report(summary: dict[str, Any], label: str, convergence_steps: Sequence[int | None] | None = None,
                   study: dict[str, str] | None = None) -> str:
     """A Markdown table: the learned fleet beside PIBT and the greedy planner on the same shifts."""
@@ -238,6 +257,7 @@ def format_report(summary: dict[str, Any], label: str, convergence_steps: Sequen
          f"{summary['seeds_at_least_pibt']} / {summary['seeds_at_least_95pct_pibt']} of {len(summary['per_seed'])}"),
         ("robot blocks per robot per 100 steps", f"{summary['blocks_per_100']:.2f} "
                                                  f"(PIBT {summary['pibt_rates']['blocks_per_100']:.2f})"),
+        *_sampled_rows(summary),
         ("shelf hits per robot per 100 steps", f"{summary['shelf_hits_per_100']:.2f}"),
         ("waits per robot per 100 steps", f"{summary['waits_per_100']:.2f} "
                                           f"(PIBT {summary['pibt_rates']['waits_per_100']:.2f})"),
@@ -253,16 +273,20 @@ def format_details(summary: dict[str, Any]) -> str:
     """Per seed: throughput with its 95 % interval over shifts, the ratio to PIBT, blocks, shelf hits, waits."""
     if "throughput" not in summary:
         return ""
-    lines = ["| seed | throughput [95 % CI over shifts] | sampled | / PIBT | blocks /100 | shelf hits /100 | waits /100 |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| seed | throughput [95 % CI over shifts] | / PIBT | blocks /100 | shelf hits /100 | waits /100 "
+             "| sampled | sampled / PIBT | sampled blocks /100 |",
+             "|---|---|---|---|---|---|---|---|---|"]
+
+    def number(value, pattern):
+        return "n/a" if value is None else format(value, pattern)
+
     for row in summary["per_seed"]:
         tp = row["throughput"]
         low, high = tp["ci95"]
-        sampled = row.get("sampled_throughput")
-        sampled_text = "n/a" if sampled is None else f"{sampled:.3f}"
-        ratio_text = "n/a" if row["vs_pibt"] is None else f"{row['vs_pibt']:.0%}"
-        lines.append(f"| {row['seed']} | {tp['mean']:.3f} [{low:.3f}, {high:.3f}] | {sampled_text} | {ratio_text} | "
-                     f"{row['blocks_per_100']:.2f} | {row['shelf_hits_per_100']:.2f} | {row['waits_per_100']:.2f} |")
+        lines.append(f"| {row['seed']} | {tp['mean']:.3f} [{low:.3f}, {high:.3f}] | {number(row['vs_pibt'], '.0%')} | "
+                     f"{row['blocks_per_100']:.2f} | {row['shelf_hits_per_100']:.2f} | {row['waits_per_100']:.2f} | "
+                     f"{number(row.get('sampled_throughput'), '.3f')} | {number(row.get('sampled_vs_pibt'), '.0%')} | "
+                     f"{number(row.get('sampled_blocks_per_100'), '.2f')} |")
     return "\n".join(lines)
 
 
