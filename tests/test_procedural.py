@@ -370,23 +370,22 @@ def test_observation_is_the_fleet_robot_observation_with_off_grid_padding():
     np.testing.assert_array_equal(np.asarray(bumped_pos), [0, 3])
 
 
-def test_last_action_observation_is_the_previous_action_one_hot():
-    """``observe_last_action``: the plain observation, then the previous action one-hot (zeros after a reset);
-    the auto-reset's reset table and a terminated episode's reset show the zeros too."""
+def _corner_layout():
+    """A 3x4 floor in a 6x6 padding: start (0, 0), item (0, 1), goal (0, 2), a shelf at (1, 1)."""
     floor = np.zeros((3, 4), dtype=bool)
     floor[1, 1] = True
-    layout = from_arrays(floor, (0, 0), (0, 2), [(0, 1)], max_shape=(6, 6), max_items=1)
-    plain_env, plain_params = make_from_layouts([layout], view_radius=1)
-    env, params = make_from_layouts([layout], view_radius=1, observe_last_action=True)
-    assert env.obs_size == plain_env.obs_size + 4 and env.observation_space(params).shape == (env.obs_size,)
-    assert env.static_config() != plain_env.static_config()
+    return from_arrays(floor, (0, 0), (0, 2), [(0, 1)], max_shape=(6, 6), max_items=1)
+
+
+def _walk_beside_the_plain_env(env, params, plain_env, plain_params, actions):
+    """``(observations, plain observations, the reset table's row)`` of one walk from slot 0, item 0, in both envs."""
 
     @jax.jit
     def probe(params, plain_params):
         obs, state = env.reset_to(0, 0, params)
         plain_obs, plain_state = plain_env.reset_to(0, 0, plain_params)
         seen, plain_seen = [obs], [plain_obs]
-        for action in (1, 3, 0, 3):  # down into the floor, right onto the shelf (a collision), up, right
+        for action in actions:
             obs, state, *_ = env.step(jax.random.key(0), state, jnp.int32(action), params)
             plain_obs, plain_state, *_ = plain_env.step(jax.random.key(0), plain_state, jnp.int32(action),
                                                         plain_params)
@@ -394,7 +393,20 @@ def test_last_action_observation_is_the_previous_action_one_hot():
             plain_seen.append(plain_obs)
         return jnp.stack(seen), jnp.stack(plain_seen), params.reset_obs[0, 0]
 
-    seen, plain_seen, reset_row = (np.asarray(x) for x in probe(params, plain_params))
+    return tuple(np.asarray(x) for x in probe(params, plain_params))
+
+
+def test_last_action_observation_is_the_previous_action_one_hot():
+    """``observe_last_action``: the plain observation, then the previous action one-hot (zeros after a reset);
+    the auto-reset's reset table and a terminated episode's reset show the zeros too."""
+    layout = _corner_layout()
+    plain_env, plain_params = make_from_layouts([layout], view_radius=1)
+    env, params = make_from_layouts([layout], view_radius=1, observe_last_action=True)
+    assert env.obs_size == plain_env.obs_size + 4 and env.observation_space(params).shape == (env.obs_size,)
+    assert env.static_config() != plain_env.static_config()
+
+    # down into the floor, right onto the shelf (a collision), up, right onto the item
+    seen, plain_seen, reset_row = _walk_beside_the_plain_env(env, params, plain_env, plain_params, (1, 3, 0, 3))
     np.testing.assert_array_equal(seen[:, :-4], plain_seen)  # the rest is the plain observation, bit for bit
     expected = np.zeros((5, 4), np.float32)
     expected[1, 1] = expected[2, 3] = expected[3, 0] = 1  # the last step picked up the item: still shown
@@ -406,27 +418,13 @@ def test_last_action_observation_is_the_previous_action_one_hot():
 
 def test_visited_channel_marks_the_trail_since_the_current_target_was_set():
     """``observe_visited``: a window channel of the cells stood on since the episode's start or the pickup."""
-    floor = np.zeros((3, 4), dtype=bool)
-    floor[1, 1] = True
-    layout = from_arrays(floor, (0, 0), (0, 2), [(0, 1)], max_shape=(6, 6), max_items=1)
+    layout = _corner_layout()
     plain_env, plain_params = make_from_layouts([layout], view_radius=1)
     env, params = make_from_layouts([layout], view_radius=1, observe_visited=True, observe_last_action=True)
     assert env.obs_size == plain_env.obs_size + 4 + 9
 
-    @jax.jit
-    def probe(params, plain_params):
-        obs, state = env.reset_to(0, 0, params)
-        plain_obs, plain_state = plain_env.reset_to(0, 0, plain_params)
-        seen, plain_seen = [obs], [plain_obs]
-        for action in (1, 0, 3):  # down, back up to the start, right onto the item (the pickup)
-            obs, state, *_ = env.step(jax.random.key(0), state, jnp.int32(action), params)
-            plain_obs, plain_state, *_ = plain_env.step(jax.random.key(0), plain_state, jnp.int32(action),
-                                                        plain_params)
-            seen.append(obs)
-            plain_seen.append(plain_obs)
-        return jnp.stack(seen), jnp.stack(plain_seen), params.reset_obs[0, 0]
-
-    seen, plain_seen, reset_row = (np.asarray(x) for x in probe(params, plain_params))
+    # down, back up to the start, right onto the item (the pickup)
+    seen, plain_seen, reset_row = _walk_beside_the_plain_env(env, params, plain_env, plain_params, (1, 0, 3))
     np.testing.assert_array_equal(seen[:, :plain_env.obs_size], plain_seen)
     visited = seen[:, -9:].reshape(4, 3, 3)
     expected = np.zeros((4, 3, 3), np.float32)
