@@ -89,7 +89,8 @@ def egocentric_windows(blocked: jax.Array, pos: jax.Array, target: jax.Array, vi
 
 # ----------------------------------------------------------------- the same windows, as bit masks
 MAX_BIT_WINDOW = 31
-"""Most window cells a mask holds: bits 0..30 of an int32 (so ``V <= 2``; larger radii use the gathers above)."""
+"""Most window cells a mask holds: bits 0..30 of an int32 (so ``V <= 2``; larger radii use the gathers above,
+or :func:`window_rows` on packed floors)."""
 
 
 def bit_windows_supported(view_radius: int) -> bool:
@@ -132,6 +133,7 @@ def robot_observation_parts(
     carrying: jax.Array,
     view_radius: int,
     size: int,
+    priority: bool = False,
 ) -> tuple[jax.Array, jax.Array]:
     """A compact form of every robot's observation: ``(scalars (K, 5) float32, masks (K, 3) int32)``.
 
@@ -147,6 +149,8 @@ def robot_observation_parts(
         shelf_masks: ``(K,)`` int32, :func:`window_masks` of the blocked grid read at each robot's cell.
         pos, target: ``(K, 2)`` int32 robot cells and target cells; carrying: ``(K,)`` bool.
         view_radius: ``V`` (static); size: ``N`` of the ``/ (N - 1)`` scaling (static).
+        priority: append a fourth mask (``masks (K, 4)``): the robots of the robot mask with a lower
+            index than the observer (those that win a free cell both enter, FLEET_SPEC.md step 3).
     """
     radius = int(view_radius)
     if not bit_windows_supported(radius):
@@ -158,20 +162,28 @@ def robot_observation_parts(
     seen = jnp.where(others, offset_masks(pos[None, :, :] - pos[:, None, :], radius), 0)  # [i, j]: j seen by i
     robot_masks = jax.lax.reduce(seen, np.int32(0), jax.lax.bitwise_or, (1,))
     target_masks = offset_masks(target - pos, radius)
-    return scalars, jnp.stack([shelf_masks, robot_masks, target_masks], axis=1)
+    channels = [shelf_masks, robot_masks, target_masks]
+    if priority:
+        lower = np.tri(num_robots, k=-1, dtype=bool)  # [i, j]: j < i
+        channels.append(jax.lax.reduce(jnp.where(lower, seen, 0), np.int32(0), jax.lax.bitwise_or, (1,)))
+    return scalars, jnp.stack(channels, axis=1)
 
 
 def expand_observations(scalars: jax.Array, masks: jax.Array, view_radius: int) -> jax.Array:
-    """``(..., 5 + 3 (2V+1)^2)`` float32 observations from :func:`robot_observation_parts`' compact form.
+    """``(..., 5 + C (2V+1)^2)`` float32 observations from :func:`robot_observation_parts`' compact form.
 
     One elementwise expression over the output's columns (scalar columns copy, window columns
     read one bit of their channel's mask), so XLA fuses it into whatever consumes the
-    observation instead of materializing the windows first.
+    observation instead of materializing the windows first. ``C`` is the masks' channel count
+    (3, or 4 with the priority channel).
     """
     cells = window_size(view_radius) ** 2
-    column = np.arange(5 + 3 * cells)
+    num_channels = masks.shape[-1]
+    column = np.arange(5 + num_channels * cells)
     channel, bit = np.divmod(np.maximum(column - 5, 0), cells)
-    mask = jnp.where(channel == 0, masks[..., 0:1], jnp.where(channel == 1, masks[..., 1:2], masks[..., 2:3]))
+    mask = masks[..., num_channels - 1:num_channels]
+    for index in range(num_channels - 2, -1, -1):
+        mask = jnp.where(channel == index, masks[..., index:index + 1], mask)
     window = ((mask >> bit.astype(np.int32)) & 1).astype(jnp.float32)
     scalar = scalars[..., 4:5]
     for index in range(3, -1, -1):
@@ -209,6 +221,11 @@ def wall_words(width: int, view_radius: int) -> int:
 def row_windows_supported(width: int, view_radius: int) -> bool:
     """True when :func:`row_shelf_masks` applies: the window fits a mask and a walled row fits one word."""
     return bit_windows_supported(view_radius) and wall_words(width, view_radius) == 1
+
+
+def window_rows_supported(width: int, view_radius: int) -> bool:
+    """True when :func:`window_rows` applies: a walled row of ``W + 2V`` cells fits one word (any ``V``)."""
+    return wall_words(width, view_radius) == 1
 
 
 def wall_rows(blocked: jax.Array, view_radius: int) -> jax.Array:
@@ -249,20 +266,60 @@ def wall_bit(rows: jax.Array, cell: jax.Array, view_radius: int) -> jax.Array:
     return ((word >> (col % WORD_BITS).astype(jnp.uint32)) & 1).astype(bool)
 
 
+def window_rows(rows: jax.Array, pos: jax.Array, view_radius: int) -> jax.Array:
+    """``(K, 2V+1)`` uint32: the window rows around each robot, bit ``c`` of row ``r`` = offset ``(r - V, c - V)``.
+
+    Window row ``r`` is walled row ``pos_r + r`` of :func:`wall_rows`' output (or of any rows packed the
+    same way: a trail), shifted right by ``pos_c`` and cut to ``2V + 1`` bits: ``2V + 1`` word gathers, a
+    shift and a mask per robot, for any radius whose walled rows fit one word
+    (:func:`window_rows_supported`). :func:`row_shelf_masks` packs them into one int32 for ``V <= 2``.
+    """
+    radius = int(view_radius)
+    side = window_size(radius)
+    if rows.shape[-1] != 1:
+        raise ValueError(f"window rows need one word per walled row; got {rows.shape[-1]} words")
+    offsets = np.arange(side)
+    words = rows[pos[:, 0, None] + offsets[None, :], 0]  # (K, side): the walled rows the windows cover
+    return (words >> pos[:, 1, None].astype(jnp.uint32)) & np.uint32((1 << side) - 1)
+
+
+def window_row_bits(rows: jax.Array) -> jax.Array:
+    """``(..., side * side)`` float32 of :func:`window_rows`' ``(..., side)`` words: one window channel, row-major."""
+    side = rows.shape[-1]
+    bits = (rows[..., :, None] >> np.arange(side, dtype=np.uint32)) & np.uint32(1)
+    return bits.astype(jnp.float32).reshape(*rows.shape[:-1], side * side)
+
+
 def row_shelf_masks(rows: jax.Array, pos: jax.Array, view_radius: int) -> jax.Array:
     """``(K,)`` int32: :func:`window_masks` of the floor read at each robot's cell, from :func:`wall_rows`.
 
-    The same bits (window cell ``w = row (2V+1) + col`` is offset ``(row - V, col - V)``): window
-    row ``row`` is walled row ``pos_r + row``, shifted right by ``pos_c`` and cut to ``2V + 1`` bits.
-    Needs :func:`row_windows_supported`.
+    The same bits (window cell ``w = row (2V+1) + col`` is offset ``(row - V, col - V)``): the
+    :func:`window_rows` packed side by side. Needs :func:`row_windows_supported`.
     """
     radius = int(view_radius)
     side = window_size(radius)
     if not bit_windows_supported(radius) or rows.shape[-1] != 1:
         raise ValueError(f"row shelf masks need view_radius <= 2 and one word per walled row; got view_radius "
                          f"{radius} and {rows.shape[-1]} words")
-    offsets = np.arange(side)
-    words = rows[pos[:, 0, None] + offsets[None, :], 0]  # (K, side): the walled rows the windows cover
-    cut = (words >> pos[:, 1, None].astype(jnp.uint32)) & np.uint32((1 << side) - 1)
-    shifted = cut << (offsets * side).astype(np.uint32)
+    shifted = window_rows(rows, pos, radius) << (np.arange(side) * side).astype(np.uint32)
     return jax.lax.reduce(shifted, np.uint32(0), jax.lax.bitwise_or, (1,)).astype(jnp.int32)
+
+
+def row_window_observation(rows: jax.Array, pos: jax.Array, target: jax.Array, carrying: jax.Array,
+                           view_radius: int, size: int) -> jax.Array:
+    """One robot's :func:`robot_observations` (``K = 1``, no other robot), bit for bit, from its floor's packed rows.
+
+    For radii past the one-int32 mask of :func:`robot_observation_parts` (``V >= 3``): the shelf
+    channel from :func:`window_rows`, an empty robot channel, the target channel by comparing the
+    window's cells with the target. ``rows``: :func:`wall_rows` of the floor; ``pos``, ``target``:
+    ``(2,)`` int32; ``carrying``: bool.
+    """
+    radius = int(view_radius)
+    side = window_size(radius)
+    table = jnp.asarray(coordinate_table(size))
+    scalars = jnp.concatenate([table[pos], table[target], carrying.astype(jnp.float32)[None]])
+    shelves = window_row_bits(window_rows(rows, pos[None], radius)[0])
+    offsets = np.arange(side) - radius
+    target_cell = (pos[0] + offsets[:, None] == target[0]) & (pos[1] + offsets[None, :] == target[1])
+    robots = jnp.zeros(side * side, jnp.float32)
+    return jnp.concatenate([scalars, shelves, robots, target_cell.astype(jnp.float32).reshape(-1)])
