@@ -175,6 +175,22 @@ def test_contested_cell_loser_stays_blocked_even_if_the_winner_is_refused():
     assert nxt == [[0, 0], [0, 1], [0, 2]] and blocked == [True, True, True]
 
 
+@pytest.mark.parametrize(("pos", "proposal", "expected"), [
+    ([[0, 0], [0, 2], [1, 1]], [[0, 1], [0, 1], [0, 1]], [None, 2, 2]),  # the lowest index wins the cell
+    ([[0, 0], [0, 1]], [[0, 1], [0, 1]], [1, None]),  # into a robot that stays
+    ([[0, 0], [0, 1], [3, 3]], [[0, 1], [0, 0], [3, 4]], [0, 0, None]),  # a refused swap
+    ([[0, 0], [0, 1], [0, 2], [0, 3]], [[0, 1], [0, 2], [0, 3], [0, 3]], [3, 3, 1, None]),  # a chain behind
+    ([[0, 0], [0, 1], [0, 2]], [[0, 1], [0, 0], [0, 1]], [0, 0, 2]),  # swap, and the cell's loser
+])
+def test_block_causes_name_the_first_reason_of_each_block(pos, proposal, expected):
+    from wrl_jax.envs.fleet.metrics import BLOCK_CAUSES, block_causes
+
+    _, blocked = resolve_both(pos, proposal)
+    causes = np.asarray(block_causes(jnp.asarray(pos), jnp.asarray(proposal), jnp.asarray(blocked)))
+    assert causes.shape == (len(pos), len(BLOCK_CAUSES)) and (causes.sum(axis=1) == np.asarray(blocked)).all()
+    assert [int(np.argmax(row)) if row.any() else None for row in causes] == expected
+
+
 # ----------------------------------------------------------------- rewards, tasks, observations
 TINY = """
 S . 0
@@ -233,6 +249,48 @@ def test_observation_by_hand():
     np.testing.assert_array_equal(window[0], [[1, 1, 1], [1, 0, 0], [1, 0, 1]])  # off-grid and the shelf (1, 1)
     np.testing.assert_array_equal(window[1], [[0, 0, 0], [0, 0, 0], [0, 1, 0]])  # robot 1 at (1, 0)
     assert window[2].sum() == 0.0  # both items lie outside robot 0's window
+
+
+def test_priority_channel_shows_the_robots_with_a_lower_index():
+    """``observe_priority``: FLEET_SPEC's observation unchanged, then a channel of the lower-index robots in view,
+    on the vmapped step (compact masks, auto-reset included) and on ``get_obs``; it changes nothing else."""
+    plain_env, params = make_fleet(maps.FLEET_12X12, 4, max_steps=20)
+    env, _ = make_fleet(maps.FLEET_12X12, 4, max_steps=20, observe_priority=True)
+    assert env.obs_size == plain_env.obs_size + 25 and env.static_config() != plain_env.static_config()
+    assert env.observation_space(params).shape == (4, env.obs_size)
+
+    def rollout(env):
+        def step(carry, key):
+            state = carry
+            obs, state, reward, _, truncated, info = env.step(key, state, jax.random.randint(key, (4,), 0, 5), params)
+            return state, (obs, info["final_obs"], state.pos, reward, truncated)
+
+        keys = jax.random.split(jax.random.key(5), 64)
+        _, state = env.reset(jax.random.key(4), params)
+        return jax.lax.scan(step, state, keys)[1]
+
+    obs, final_obs, pos, reward, truncated = jax.tree.map(np.asarray, jax.jit(functools.partial(rollout, env))())
+    plain = jax.tree.map(np.asarray, jax.jit(functools.partial(rollout, plain_env))())
+    np.testing.assert_array_equal(obs[..., :plain_env.obs_size], plain[0])
+    np.testing.assert_array_equal(final_obs[..., :plain_env.obs_size], plain[1])
+    np.testing.assert_array_equal(reward, plain[3])
+    assert truncated.sum() == 3  # auto-resets happened in the rollout
+    priority = obs[..., plain_env.obs_size:].reshape(64, 4, 5, 5)
+    expected = np.zeros_like(priority)
+    for t in range(64):
+        for i in range(4):
+            for j in range(i):  # the robots that win a cell both enter
+                d_row, d_col = pos[t, j] - pos[t, i]
+                if abs(d_row) <= 2 and abs(d_col) <= 2:
+                    expected[t, i, d_row + 2, d_col + 2] = 1
+    np.testing.assert_array_equal(priority, expected)
+    assert expected.sum() > 20 and not priority[:, 0].any()
+    robots = obs[..., 5 + 25:5 + 50].reshape(64, 4, 5, 5)
+    assert (robots >= priority).all() and (robots > priority).any()  # a subset of the robot channel
+    first_obs, first_state = env.reset(jax.random.key(4), params)
+    np.testing.assert_array_equal(np.asarray(env.get_obs(first_state, params)), np.asarray(first_obs))
+    with pytest.raises(ValueError, match="observe_priority needs the bit-mask window"):
+        make_fleet(maps.FLEET_12X12, 4, view_radius=3, observe_priority=True)
 
 
 def test_global_state_layout():

@@ -45,6 +45,8 @@ class EnvOptions:
     """fleet environments: robots K (default 4 on Fleet-12x12-v0)"""
     block_penalty: float | None = None
     """fleet environments: reward for a blocked move"""
+    observe_priority: bool | None = None
+    """fleet environments: a window channel of the robots with a lower index (they win a contested cell)"""
     view_radius: int | None = None
     """fleet and procedural environments: radius V of each robot's egocentric window"""
     shaping: str | None = None
@@ -214,6 +216,7 @@ def parse(algo: str, argv: list[str] | None = None) -> Command:
 FAMILY_OPTIONS = {
     "num_robots": ("fleet",),
     "block_penalty": ("fleet",),
+    "observe_priority": ("fleet",),
     "view_radius": ("fleet", "procedural"),
     "shaping": ("fleet",),
     "pool_size": ("procedural",),

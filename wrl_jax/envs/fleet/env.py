@@ -31,6 +31,7 @@ one place (the random words are in :mod:`wrl_jax.core.random`, the windows in
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 import jax
@@ -47,6 +48,7 @@ from wrl_jax.core.observation import (
     robot_observation_parts,
     robot_observations,
     window_masks,
+    window_size,
 )
 from wrl_jax.core.random import random_words, split_key, threefry2x32, threefry_key_data  # noqa: F401 (re-exported)
 from wrl_jax.envs.fleet.types import FleetParams, FleetState, FleetTasks
@@ -274,20 +276,24 @@ def fleet_reset(tasks: FleetTasks, params: FleetParams) -> FleetState:
                       carrying=jnp.zeros(params.starts.shape[0], dtype=bool), time=jnp.zeros((), jnp.int32))
 
 
-def fleet_observation(state: FleetState, params: FleetParams, view_radius: int) -> jax.Array:
+def fleet_observation(state: FleetState, params: FleetParams, view_radius: int, priority: bool = False) -> jax.Array:
     """``(K, 5 + 3 (2V+1)^2)`` float32 observations (FLEET_SPEC.md), through :mod:`wrl_jax.core.observation`.
 
     For ``V <= 2`` from bit masks (:func:`observation_parts`), the same bits as
     :func:`~wrl_jax.core.observation.robot_observations`, several times cheaper under ``vmap``.
+    ``priority`` (``V <= 2``) appends a fourth window channel, ``(K, 5 + 4 (2V+1)^2)``: the other
+    robots with a lower index than the observer (:attr:`Fleet.observe_priority`).
     """
     if not bit_windows_supported(view_radius):
         target = _target_cells(params)[_target_index(state, params)]
         return robot_observations(params.shelves, state.pos, target, state.carrying, view_radius)
-    return expand_observations(*observation_parts(state, params, view_radius), view_radius)
+    return expand_observations(*observation_parts(state, params, view_radius, priority), view_radius)
 
 
-def observation_parts(state: FleetState, params: FleetParams, view_radius: int) -> tuple[jax.Array, jax.Array]:
-    """The observations' compact form ``(scalars (K, 5), masks (K, 3))`` (``V <= 2``; see ``robot_observation_parts``).
+def observation_parts(state: FleetState, params: FleetParams, view_radius: int,
+                      priority: bool = False) -> tuple[jax.Array, jax.Array]:
+    """The observations' compact form ``(scalars (K, 5), masks (K, 3 or 4))`` (``V <= 2``; see
+    ``robot_observation_parts``).
 
     The shelf masks come from a table of the layout (:func:`~wrl_jax.core.observation.window_masks`),
     one gather per robot; with params shared by a batch the table is built once per step.
@@ -295,7 +301,7 @@ def observation_parts(state: FleetState, params: FleetParams, view_radius: int) 
     size = params.shelves.shape[0]
     target = _target_cells(params)[_target_index(state, params)]
     masks = window_masks(params.shelves, view_radius).reshape(-1)[state.pos[:, 0] * size + state.pos[:, 1]]
-    return robot_observation_parts(masks, state.pos, target, state.carrying, view_radius, size)
+    return robot_observation_parts(masks, state.pos, target, state.carrying, view_radius, size, priority)
 
 
 def global_state(state: FleetState, params: FleetParams) -> jax.Array:
@@ -348,20 +354,30 @@ class Fleet(Environment[FleetState, FleetParams]):
     :func:`global_state` of the state the transition reached (before an
     auto-reset: what a centralised critic bootstraps a truncated shift from; it
     costs nothing where unused, since XLA drops it from a jitted program).
+
+    ``observe_priority=True`` (an option beyond FLEET_SPEC.md, off by default) appends a
+    fourth window channel to each robot's observation: 1.0 where another robot with a
+    *lower index* stands. The conflict rule lets the lowest index win a free cell that
+    several robots enter, and a shared policy cannot otherwise tell which of two robots
+    facing one cell will win it: with this channel it can learn to yield.
     """
 
     family = "fleet"
 
-    def __init__(self, params: FleetParams, view_radius: int = 2, name: str = "Fleet"):
+    def __init__(self, params: FleetParams, view_radius: int = 2, name: str = "Fleet", observe_priority: bool = False):
         self.size = int(params.shelves.shape[0])
         self.num_robots = int(params.starts.shape[0])
         self.num_agents = self.num_robots
         self.view_radius = int(view_radius)
+        self.observe_priority = bool(observe_priority)
+        if self.observe_priority and not bit_windows_supported(self.view_radius):
+            raise ValueError(f"observe_priority needs the bit-mask window (view_radius <= 2), got view_radius="
+                             f"{self.view_radius}")
         self._name = name
         super().__init__(params)
 
     def static_config(self) -> tuple:
-        return (self._name, self.size, self.num_robots, self.view_radius)
+        return (self._name, self.size, self.num_robots, self.view_radius, self.observe_priority)
 
     @property
     def name(self) -> str:
@@ -373,25 +389,27 @@ class Fleet(Environment[FleetState, FleetParams]):
 
     @property
     def obs_size(self) -> int:
-        return observation_size(self.view_radius)
+        """FLEET_SPEC.md's ``5 + 3 (2V+1)^2``, plus ``(2V+1)^2`` with the priority channel."""
+        return observation_size(self.view_radius) + (window_size(self.view_radius) ** 2 if self.observe_priority else 0)
 
     def onehot_coordinates(self) -> tuple[int, int, int, int]:
         """Four coordinates (own row and col, target row and col), each ``i / (N - 1)``: ``N`` values."""
         return (4, self.size, 0, self.size - 1)
 
     def __repr__(self) -> str:
-        return f"Fleet({self._name!r}, size={self.size}, num_robots={self.num_robots}, view_radius={self.view_radius})"
+        return (f"Fleet({self._name!r}, size={self.size}, num_robots={self.num_robots}, view_radius={self.view_radius}"
+                f"{', observe_priority=True' if self.observe_priority else ''})")
 
     # ---------------------------------------------------------- gymnax hooks
     def reset_env(self, key: jax.Array, params: FleetParams) -> tuple[jax.Array, FleetState]:
         state = fleet_reset(draw_tasks(key, params, self.num_robots), params)
-        return fleet_observation(state, params, self.view_radius), state
+        return self._observe(state, params), state
 
     def transition(self, key: jax.Array, state: FleetState, action: Any, params: FleetParams):
         self.check_action(action)
         tasks = draw_tasks(key, params, self.num_robots)
         next_state, reward, truncated, flags = fleet_transition(state, action, tasks, params)
-        obs = fleet_observation(next_state, params, self.view_radius)
+        obs = self._observe(next_state, params)
         info = {**flags, "final_global_state": global_state(next_state, params)}
         return obs, next_state, reward, jnp.zeros((), dtype=bool), truncated, info
 
@@ -407,7 +425,7 @@ class Fleet(Environment[FleetState, FleetParams]):
         tasks = draw_tasks(split_key(key, 0), params, self.num_robots)
         reached, reward, truncated, flags = fleet_transition(state, action, tasks, params)
         compact = bit_windows_supported(self.view_radius)
-        observe = observation_parts if compact else fleet_observation
+        observe = partial(observation_parts if compact else fleet_observation, priority=self.observe_priority)
         final_parts = observe(reached, params, self.view_radius)
         if compact:  # materialize the 32 bytes a robot: else XLA recomputes masks for each of the 80 columns
             final_parts = jax.lax.optimization_barrier(final_parts)
@@ -432,7 +450,10 @@ class Fleet(Environment[FleetState, FleetParams]):
         return obs, next_state, reward, jnp.zeros((), dtype=bool), truncated, info
 
     def get_obs(self, state: FleetState, params: FleetParams | None = None, key: jax.Array | None = None):
-        return fleet_observation(state, self.default_params if params is None else params, self.view_radius)
+        return self._observe(state, self.default_params if params is None else params)
+
+    def _observe(self, state: FleetState, params: FleetParams) -> jax.Array:
+        return fleet_observation(state, params, self.view_radius, self.observe_priority)
 
     def global_state(self, state: FleetState, params: FleetParams | None = None) -> jax.Array:
         """See :func:`global_state`."""

@@ -30,6 +30,36 @@ COUNTED = ("delivered", "picked_up", "shelf_hit", "wall_bump", "robot_block", "w
 """The env's per-robot ``info`` flags that :func:`run_episodes` counts."""
 
 
+BLOCK_CAUSES = ("swap", "into a standing robot", "lost a contested cell", "behind a blocked robot")
+"""The classes of :func:`block_causes`, in the order a block is put in the first that applies."""
+
+
+def block_causes(pos: jax.Array, proposal: jax.Array, blocked: jax.Array) -> jax.Array:
+    """``(K, 4)`` bool, one-hot over :data:`BLOCK_CAUSES` for each blocked robot (all False for the others).
+
+    The first reason FLEET_SPEC.md step 3 gives for robot ``i``'s block, from the proposals
+    ``q`` (step 1's, ``q_i = pos_i`` for a robot that does not try to move): ``swap``, some mover
+    ``j`` has ``q_j = pos_i`` and ``q_i = pos_j``; ``into a standing robot``, ``q_i`` is the cell of a
+    robot that does not try to move (visible in ``i``'s window before it acted); ``lost a contested
+    cell``, a mover ``j < i`` has ``q_j = q_i``; else ``behind a blocked robot``, the robot ``i``
+    followed was blocked in an earlier round. What a policy would need to avoid each differs, which is
+    why ``bench/fleet_blocks.py`` counts them.
+    """
+    num_robots = pos.shape[0]
+    others = ~np.eye(num_robots, dtype=bool)
+    lower = np.tri(num_robots, k=-1, dtype=bool)  # [i, j]: j < i
+    mover = jnp.any(proposal != pos, axis=1)
+
+    def same(a, b):  # [i, j]: a_i == b_j
+        return jnp.all(a[:, None, :] == b[None, :, :], axis=-1)
+
+    swap = jnp.any(others & mover[None, :] & same(pos, proposal) & same(proposal, pos), axis=1)
+    standing = jnp.any(others & ~mover[None, :] & same(proposal, pos), axis=1)
+    contested = jnp.any(lower & mover[None, :] & same(proposal, proposal), axis=1)
+    first = jnp.stack([swap, standing & ~swap, contested & ~swap & ~standing, ~swap & ~standing & ~contested], axis=1)
+    return first & blocked[:, None]
+
+
 @struct.dataclass
 class Step:
     """One recorded transition of :func:`rollout`: the state before it, the actions, the flags."""
