@@ -11,7 +11,11 @@ put in a class by what it did in its last ``--tail`` steps:
 * ``stuck``: one cell (pushing into a shelf or the edge, or waiting);
 * ``wandering``: more than eight cells;
 
-and by stage (still looking for its item, or carrying it to the goal). Run from the repository root::
+and by stage (still looking for its item, or carrying it to the goal). The delivered episodes' excess
+over the BFS optimum is broken down too (``excess``: how many episodes took 0, 1-2, 3-5, 6-10, 11-20,
+21-50 and more than 50 extra steps, and each bucket's share of the total excess), to tell a policy that
+detours a little everywhere from one whose mean is made by a few long searches. Run from the repository
+root::
 
     .venv/bin/python bench/procedural_failures.py --run runs/ppo-procedural --json OUT
 """
@@ -42,6 +46,26 @@ def classify(cells_in_tail: np.ndarray) -> np.ndarray:
     """Class names of undelivered episodes from the number of distinct cells of their last steps."""
     return np.select([cells_in_tail == 1, cells_in_tail == 2, cells_in_tail <= 8],
                      ["stuck", "two-cell loop", "short loop"], "wandering")
+
+
+EXCESS_BUCKETS = ((0, 0), (1, 2), (3, 5), (6, 10), (11, 20), (21, 50), (51, None))
+
+
+def excess_breakdown(excess: np.ndarray, optimal: np.ndarray) -> dict:
+    """Delivered episodes by extra steps over the optimum: count, and share of the total excess, per bucket.
+
+    ``excess_fraction`` is the final report's (mean excess over mean optimum); ``without_over_20`` is the
+    same for the episodes with at most 20 extra steps, the policy's routing without its long searches.
+    """
+    total = max(int(excess.sum()), 1)
+    buckets = {}
+    for low, high in EXCESS_BUCKETS:
+        mine = (excess >= low) & (excess <= (high if high is not None else excess.max(initial=0)))
+        name = str(low) if low == high else (f"{low}-{high}" if high is not None else f">{low - 1}")
+        buckets[name] = {"episodes": int(mine.sum()), "share_of_excess": float(excess[mine].sum() / total)}
+    short = excess <= 20
+    return {"delivered": int(excess.size), "excess_fraction": float(excess.mean() / optimal.mean()),
+            "without_over_20": float(excess[short].mean() / optimal[short].mean()), "buckets": buckets}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -82,12 +106,12 @@ def main(argv: list[str] | None = None) -> int:
 
             (_, last, _), (pos, carrying) = jax.lax.scan(one, (obs, state, jnp.array(False)), None, length=horizon)
             delivered = last.carrying & jnp.all(last.pos == last.goal)
-            return delivered, pos, carrying
+            return delivered, pos, carrying, last.time, last.optimal
 
         return jax.vmap(episode)(slots, items)
 
-    delivered, pos, carrying = (np.asarray(x) for x in trajectories(jnp.asarray(slots, jnp.int32),
-                                                                    jnp.asarray(items, jnp.int32)))
+    delivered, pos, carrying, steps, optimal = (np.asarray(x) for x in trajectories(
+        jnp.asarray(slots, jnp.int32), jnp.asarray(items, jnp.int32)))
     failed = np.flatnonzero(~delivered)
     tail = pos[failed, -args.tail:]
     cells = np.array([len({tuple(cell) for cell in episode}) for episode in tail], dtype=np.int32)
@@ -97,7 +121,8 @@ def main(argv: list[str] | None = None) -> int:
     by_stage = {name: int((stage == name).sum()) for name in ("looking for the item", "carrying to the goal")}
     result = {"run": str(args.run), "seed": int(meta["seeds"][args.seed_index]), "episodes": int(delivered.size),
               "undelivered": int(failed.size), "tail_steps": args.tail, "classes": counts, "stages": by_stage,
-              "distinct_cells_in_tail": {str(k): int(v) for k, v in zip(*np.unique(cells, return_counts=True))}}
+              "distinct_cells_in_tail": {str(k): int(v) for k, v in zip(*np.unique(cells, return_counts=True))},
+              "excess": excess_breakdown(steps[delivered] - optimal[delivered], optimal[delivered])}
     print(json.dumps(result, indent=2))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)

@@ -434,21 +434,71 @@ def test_visited_channel_marks_the_trail_since_the_current_target_was_set():
     expected[3, 1, 1] = 1  # picked up at (0, 1): a new trail, its first cell
     np.testing.assert_array_equal(visited, expected)
     np.testing.assert_array_equal(reset_row, seen[0])
-    with pytest.raises(ValueError, match="observe_visited needs the bit-mask window"):
-        make_from_layouts([layout], view_radius=3, observe_visited=True)
+
+    # A 7x7 window (V = 3, past the int32 masks) reads the same trail: its centre is the 3x3 above.
+    wide_plain_env, wide_plain_params = make_from_layouts([layout], view_radius=3)
+    wide_env, wide_params = make_from_layouts([layout], view_radius=3, observe_visited=True, observe_last_action=True)
+    assert not wide_env.bit_windows and wide_env.row_windows
+    seen, plain_seen, _ = _walk_beside_the_plain_env(wide_env, wide_params, wide_plain_env, wide_plain_params,
+                                                     (1, 0, 3))
+    np.testing.assert_array_equal(seen[:, :wide_plain_env.obs_size], plain_seen)
+    wide_expected = np.zeros((4, 7, 7), np.float32)
+    wide_expected[:, 2:5, 2:5] = expected
+    np.testing.assert_array_equal(seen[:, -49:].reshape(4, 7, 7), wide_expected)
+    with pytest.raises(ValueError, match="observe_visited needs the packed-row window"):
+        make_from_layouts([layout], view_radius=14, observe_visited=True)  # 6 + 28 walled columns
 
 
-@pytest.mark.parametrize("view_radius", [0, 1, 2, 3])
+def test_visit_levels_count_the_laps_of_a_loop():
+    """``visit_levels = 3``: the trail channel counts visits (``min(count, 3) / 3``), so two laps of a
+    two-cell loop look different; a pickup starts a new count; ``visit_levels = 1`` is the plain trail."""
+    layout = _corner_layout()
+    plain_env, plain_params = make_from_layouts([layout], view_radius=1)
+    env, params = make_from_layouts([layout], view_radius=1, observe_visited=True, visit_levels=3)
+    assert env.obs_size == plain_env.obs_size + 9 and env.static_config() != make_from_layouts(
+        [layout], view_radius=1, observe_visited=True)[0].static_config()
+
+    # down and up three times between (0, 0) and (1, 0), then right onto the item (the pickup)
+    seen, plain_seen, reset_row = _walk_beside_the_plain_env(env, params, plain_env, plain_params,
+                                                             (1, 0, 1, 0, 1, 0, 3))
+    np.testing.assert_array_equal(seen[:, :plain_env.obs_size], plain_seen)
+    counts = np.rint(seen[:, -9:].reshape(8, 3, 3) * 3).astype(int)
+    # visits of the start A = (0, 0) and of B = (1, 0) after each step; the robot is on B after odd steps
+    counts_a_b = [(1, 0), (1, 1), (2, 1), (2, 2), (3, 2), (3, 3), (3, 3)]
+    for step, (count_a, count_b) in enumerate(counts_a_b):
+        on_b = step % 2 == 1  # on B, A is above the centre; on A, B is below it
+        centre, other = (count_b, count_a) if on_b else (count_a, count_b)
+        assert counts[step, 1, 1] == centre and counts[step, 0 if on_b else 2, 1] == other, step
+        assert counts[step].sum() == count_a + count_b, step
+    np.testing.assert_array_equal(seen[:, -9:], counts.reshape(8, 9).astype(np.float32) * np.float32(1 / 3))
+    expected_after_pickup = np.zeros((3, 3), int)
+    expected_after_pickup[1, 1] = 1
+    np.testing.assert_array_equal(counts[7], expected_after_pickup)
+    np.testing.assert_array_equal(reset_row, seen[0])
+
+    # One level is the plain trail, bit for bit.
+    binary_env, binary_params = make_from_layouts([layout], view_radius=1, observe_visited=True, visit_levels=1)
+    binary, _, _ = _walk_beside_the_plain_env(binary_env, binary_params, plain_env, plain_params,
+                                              (1, 0, 1, 0, 1, 0, 3))
+    np.testing.assert_array_equal(binary[:, -9:], (counts > 0).reshape(8, 9).astype(np.float32))
+    with pytest.raises(ValueError, match="visit_levels=3 counts the visits of the trail channel"):
+        make_from_layouts([layout], view_radius=1, visit_levels=3)
+    with pytest.raises(ValueError, match="visit_levels must be in 1..255"):
+        make_from_layouts([layout], view_radius=1, observe_visited=True, visit_levels=0)
+
+
+@pytest.mark.parametrize("view_radius", [0, 1, 2, 3, 4, 11])
 def test_bit_mask_observation_is_robot_observations_bit_for_bit(view_radius):
-    """The packed-row window (V <= 2) equals the gathers of ``robot_observations`` on random states.
+    """The packed-row windows equal the gathers of ``robot_observations`` on random states.
 
     Layouts from 3x3 to 12x12 in a 12x12 padding, so windows reach off-grid cells of small floors
     and the wall ring; positions anywhere on the real floor (shelves too), either target.
-    V = 3 takes the gather path (no 31-bit mask) and must agree as well.
+    V <= 2 packs the rows into int32 masks; V = 3, 4 read the window's rows unpacked (no 31-bit
+    mask); V = 11 (34 walled columns) takes the gathers; all must agree.
     """
     env, params = make_procedural(pool_size=64, min_shape=(3, 3), max_shape=(12, 12), max_items=1,
                                   view_radius=view_radius)
-    assert env.bit_windows == (view_radius <= 2)
+    assert env.bit_windows == (view_radius <= 2) and env.row_windows == (view_radius <= 10)
 
     def one(key):
         key_reset, key_row, key_col, key_carry = jax.random.split(key, 4)
@@ -653,10 +703,14 @@ def test_final_report_measures_heldout_and_ood_sets(env_and_params, ood, monkeyp
     monkeypatch.setattr(evaluation, "ood_sets", ood_sets)
     env, params = env_and_params
     params = params.replace(max_steps=jnp.int32(60))
-    context = FinalContext(algo=SimpleNamespace(greedy_action=_toward_target), network_params=jnp.arange(2),
-                           env=env, params=params, seeds=[7, 8])
+    # A "stochastic" stand-in whose draws are its greedy action: the sampled held-out row must equal the greedy one.
+    algo = SimpleNamespace(greedy_action=_toward_target, has_stochastic_policy=True,
+                           sample_action=lambda net, obs, key: _toward_target(net, obs))
+    context = FinalContext(algo=algo, network_params=jnp.arange(2), env=env, params=params, seeds=[7, 8])
     report = evaluation.final_report(context)
     heldout, ood = report["heldout"], report["ood"]
+    sampled = {k: v for k, v in report["heldout_sampled"].items() if k != "description"}
+    assert sampled == {k: v for k, v in heldout.items() if k not in ("description", "overlap_with_training")}
     assert heldout["layouts"] == 48 - heldout["overlap_with_training"] and heldout["overlap_with_training"] == 0
     assert set(ood) == {"dense", "narrow_shelves", "study_8x8", "study_12x12", "movingai"}
     assert [ood[name]["layouts"] for name in ("dense", "narrow_shelves", "movingai")] == [16, 16, 3]
@@ -673,9 +727,11 @@ def test_final_report_measures_heldout_and_ood_sets(env_and_params, ood, monkeyp
     assert report["final_report_seconds"] > 0
     details = evaluation.format_details(report)
     assert "| heldout | 48 |" in details and "| movingai | 3 |" in details and "seed 8" in details
+    assert "| heldout (sampled policy) | 48 |" in details
     summary = {"eval_layouts": 64, "episodes_per_seed": 1, "success_rate": 1.0, "optimal_rate": 1.0,
                "mean_excess": 0.0, "collisions_per_episode": 0.0, **report}
-    assert "final: 48 held-out layouts" in evaluation.format_report(summary, "x")
+    headline = evaluation.format_report(summary, "x")
+    assert "final: 48 held-out layouts" in headline and "final, sampled policy: delivered / excess" in headline
 
 
 def test_final_sets_agree_with_the_periodic_evaluation_and_drop_training_layouts(env_and_params):
@@ -701,6 +757,18 @@ def test_final_sets_agree_with_the_periodic_evaluation_and_drop_training_layouts
     assert together["heldout"]["delivery_rate"] == delivered.sum() / alone.real.sum()
     assert together["heldout"]["per_seed"][1]["delivery_rate"] == delivered[1].sum() / alone.real[1].sum()
     assert together["all"]["episodes"] == together["heldout"]["episodes"] + 2 * 20
+    # Sampled episodes: the same key, the same episodes; another key, other ones.
+    def uniform(net, obs, key):
+        return jax.random.randint(key, (), 0, 4)
+
+    sample = jax.jit(lambda key: evaluation.run_episodes(_toward_target, 0, env, params, jnp.arange(48),
+                                                         jnp.zeros(48, jnp.int32), uniform, key))
+    first, again, other = (jax.tree.map(np.asarray, sample(jax.random.key(k))) for k in (5, 5, 6))
+    for a, b in zip(first, again):
+        np.testing.assert_array_equal(a, b)
+    assert (first[3] != other[3]).any() and len(np.unique(first[3])) > 1  # collisions differ across keys, episodes
+    with pytest.raises(ValueError, match="sampled episodes need a key"):
+        evaluation.run_episodes(_toward_target, 0, env, params, jnp.arange(2), jnp.zeros(2, jnp.int32), uniform)
     with pytest.raises(ValueError, match="padded to"):
         evaluation.evaluate_sets(_toward_target, jnp.arange(1), env, params, [evaluation.LayoutSet(
             "small", "", jax.tree.map(lambda x: x[None], evaluation.study_layout("8x8", (8, 8))))], [0])

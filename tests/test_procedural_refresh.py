@@ -141,6 +141,8 @@ def test_bad_refresh_settings_fail_clearly(small, tmp_path):
         parse("ppo", ["--env", "Warehouse-8x8-v0", "--view-radius", "1", "--out", str(tmp_path / "b")])
     with pytest.raises(ValueError, match="--observe-last-action: procedural options"):
         parse("ppo", ["--env", "Fleet-12x12-v0", "--observe-last-action", "True", "--out", str(tmp_path / "d")])
+    with pytest.raises(ValueError, match="--visit-levels: procedural options"):
+        parse("ppo", ["--env", "Fleet-12x12-v0", "--visit-levels", "3", "--out", str(tmp_path / "e")])
     with pytest.raises(ValueError, match="--observe-priority: fleet options"):
         parse("ppo", ["--env", "Procedural-Warehouse-v0", "--observe-priority", "True", "--out", str(tmp_path / "f")])
     command = parse("ppo", ["--env", "Procedural-Warehouse-v0", "--pool-size", "64", "--pool-refresh", "16",

@@ -59,6 +59,8 @@ class EnvOptions:
     """procedural environments: the previous action, one-hot, in the observation (a one-step memory)"""
     observe_visited: bool | None = None
     """procedural environments: a window channel of the cells visited since the current target was set"""
+    visit_levels: int | None = None
+    """procedural environments: the visited channel counts visits up to this many (1: visited or not)"""
 
     def overrides(self) -> dict[str, Any]:
         """Keyword overrides for ``wrl_jax.make``: only what differs from the registered environment."""
@@ -223,6 +225,7 @@ FAMILY_OPTIONS = {
     "pool_refresh": ("procedural",),
     "observe_last_action": ("procedural",),
     "observe_visited": ("procedural",),
+    "visit_levels": ("procedural",),
 }
 """Environment flags that only some families take (refused on the others before anything is built)."""
 

@@ -28,11 +28,16 @@ switch. What differs is where the layout comes from and what is observed:
   ``observe_visited=True`` appends a fourth window channel: 1.0 on the cells the
   robot stood on since its current target was set (the episode's start, or the
   pickup), kept as packed rows like the floor's (``state.visited``): memory of
-  any loop, not only a two-cell one.
+  any loop, not only a two-cell one. With ``visit_levels = L > 1`` the channel
+  counts the visits to each cell up to ``L`` (value ``min(count, L) / L``): the
+  trail of a loop then changes on every lap, so a deterministic policy that
+  meets it again is not bound to repeat itself.
   For ``V <= 2`` (and walled rows of at most 32 cells) the window is computed
   from the packed rows as int32 bit masks (:func:`wrl_jax.core.observation.row_shelf_masks`,
   then the fleet's :func:`~wrl_jax.core.observation.expand_observations`), bit for bit
-  the same observation, many times cheaper under ``vmap`` than the gathers.
+  the same observation, many times cheaper under ``vmap`` than the gathers; for larger
+  ``V`` (walled rows still of at most 32 cells) the window's rows are read from the
+  packed rows and expanded (:func:`~wrl_jax.core.observation.row_window_observation`).
 - The state carries the episode's BFS optimum (``optimal``) for evaluation.
 """
 
@@ -55,11 +60,15 @@ from wrl_jax.core.observation import (
     robot_observation_parts,
     robot_observations,
     row_shelf_masks,
+    row_window_observation,
     row_windows_supported,
     unpack_wall_rows,
     wall_bit,
     wall_rows,
     wall_words,
+    window_row_bits,
+    window_rows,
+    window_rows_supported,
     window_size,
 )
 from wrl_jax.core.random import random_words, threefry2x32, threefry_key_data
@@ -79,6 +88,8 @@ from wrl_jax.envs.warehouse.env import check_action, item_from_word, spec_reward
 NUM_ACTIONS = 4
 MAX_POOL_SIZE = 2**16 - 1
 """Slot bound of the 32-bit slot draw (:func:`wrl_jax.env.item_from_word`)."""
+MAX_VISIT_LEVELS = 255
+"""Largest visit count the trail channel tells apart (8 bit planes)."""
 
 
 @struct.dataclass
@@ -117,8 +128,10 @@ class ProceduralState:
     """One episode. ``walls`` ``(H + 2V, words)`` uint32 is this episode's floor, a copy from ``params.walls``.
 
     ``last_action`` is the action of the previous step (-1 on an episode's first). ``visited``
-    ``(H + 2V, 1)`` uint32, in the floor's packed layout, marks the cells stood on since the current
-    target was set (``(0, 1)``, nothing, unless the environment observes it).
+    ``(B, H + 2V, 1)`` uint32, ``B`` bit planes in the floor's packed layout, counts the visits to each
+    cell since the current target was set, saturating at ``visit_levels`` (bit ``k`` of a cell's count
+    in plane ``k``; ``B = 1`` for the plain trail; ``(1, 0, 1)``, nothing, unless the environment
+    observes it).
 
     The floor's walled rows packed in words (:func:`wrl_jax.core.observation.wall_rows`: shelves,
     off-grid padding and a ``V``-cell wall ring set); :meth:`ProceduralWarehouse.blocked` unpacks it.
@@ -161,8 +174,10 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         observe_last_action: append the previous action, one-hot (zeros on an episode's
             first step), after the robot observation (and before the map, if observed).
         observe_visited: append the window's cells visited since the current target was set
-            (``(2V+1)^2`` values, after the previous action); needs the bit-mask window
-            (``V <= 2``, padded width at most ``32 - 2V``).
+            (``(2V+1)^2`` values, after the previous action); needs the packed-row window
+            (padded width at most ``32 - 2V``).
+        visit_levels: with ``observe_visited``, count visits to each cell up to this many
+            (the channel's value ``min(count, L) / L``); 1 marks a cell stood on or not.
     """
 
     num_actions = NUM_ACTIONS
@@ -171,7 +186,7 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
     def __init__(self, default_params: ProceduralParams | None = None, *, generator: GeneratorConfig,
                  pool_size: int, view_radius: int = 2, observe_map: bool = False, observe_window: bool = True,
                  pool_seed: int | None = None, pool_refresh: int = 0, observe_last_action: bool = False,
-                 observe_visited: bool = False):
+                 observe_visited: bool = False, visit_levels: int = 1):
         if not 1 <= int(pool_size) <= MAX_POOL_SIZE:
             raise ValueError(f"pool_size must be in 1..{MAX_POOL_SIZE}, got {pool_size}")
         if not 0 <= int(pool_refresh) <= int(pool_size):
@@ -189,10 +204,16 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         self.pool_refresh = int(pool_refresh)
         self.observe_last_action = bool(observe_last_action)
         self.observe_visited = bool(observe_visited)
-        if self.observe_visited and not (self.observe_window and self.bit_windows):
-            raise ValueError(f"observe_visited needs the bit-mask window: view_radius <= 2 and a padded width of at "
-                             f"most {32 - 2 * self.view_radius}; got view_radius={self.view_radius}, max_shape="
-                             f"{self.max_shape}, observe_window={self.observe_window}")
+        self.visit_levels = int(visit_levels)
+        if not 1 <= self.visit_levels <= MAX_VISIT_LEVELS:
+            raise ValueError(f"visit_levels must be in 1..{MAX_VISIT_LEVELS}, got {visit_levels}")
+        if self.visit_levels > 1 and not self.observe_visited:
+            raise ValueError(f"visit_levels={self.visit_levels} counts the visits of the trail channel: it needs "
+                             f"observe_visited=True")
+        if self.observe_visited and not (self.observe_window and self.row_windows):
+            raise ValueError(f"observe_visited needs the packed-row window: a padded width of at most "
+                             f"{32 - 2 * self.view_radius} at view_radius={self.view_radius} (walled rows of one "
+                             f"32-bit word); got max_shape={self.max_shape}, observe_window={self.observe_window}")
         if default_params is not None:
             self.check_params(default_params)
         super().__init__(default_params)
@@ -207,13 +228,14 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
 
     def static_config(self) -> tuple:
         return (self.generator, self.pool_size, self.view_radius, self.observe_map, self.observe_window,
-                self.pool_seed, self.pool_refresh, self.observe_last_action, self.observe_visited)
+                self.pool_seed, self.pool_refresh, self.observe_last_action, self.observe_visited, self.visit_levels)
 
     def __repr__(self) -> str:
         return (f"ProceduralWarehouse(max_shape={self.max_shape}, pool_size={self.pool_size}, "
                 f"view_radius={self.view_radius}, observe_map={self.observe_map}, "
                 f"observe_window={self.observe_window}, pool_refresh={self.pool_refresh}, "
                 f"observe_last_action={self.observe_last_action}, observe_visited={self.observe_visited}, "
+                f"visit_levels={self.visit_levels}, "
                 f"family={self.generator.family!r})")
 
     def check_params(self, params: ProceduralParams) -> None:
@@ -257,7 +279,8 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         :func:`draw_episode` (the reset is paid on every step: see there for why it is written out).
         """
         layout_index, item_index = draw_episode(key, params.pool.layouts.num_items, self.pool_size)
-        state = initial_state(layout_index, item_index, params.pool, params.walls, self.visited_rows)
+        state = initial_state(layout_index, item_index, params.pool, params.walls, self.visited_rows,
+                              self.visit_levels)
         return params.reset_obs[layout_index, item_index], state
 
     def reset_to(self, layout_index: jax.Array | int, item_index: jax.Array | int,
@@ -265,7 +288,7 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         """A fresh episode on a chosen slot and item (deterministic evaluation)."""
         params = self.default_params if params is None else params
         state = initial_state(jnp.asarray(layout_index, jnp.int32), jnp.asarray(item_index, jnp.int32),
-                              params.pool, params.walls, self.visited_rows)
+                              params.pool, params.walls, self.visited_rows, self.visit_levels)
         return self.observe(state), state
 
     # ------------------------------------------------------------ step
@@ -315,7 +338,8 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         truncated = (time >= params.max_steps) & ~terminated
         visited = state.visited
         if self.observe_visited:  # a new target (the pickup) starts a new trail
-            visited = mark_cell(jnp.where(picked_up, jnp.uint32(0), visited), next_pos, self.view_radius)
+            visited = count_visit(jnp.where(picked_up, jnp.uint32(0), visited), next_pos, self.view_radius,
+                                  self.visit_levels)
         next_state = state.replace(pos=next_pos, carrying=state.carrying | picked_up, time=time, last_action=action,
                                    visited=visited)
         info = {"collision": collision, "wall_bump": wall_bump, "picked_up": picked_up, "delivered": delivered}
@@ -345,6 +369,8 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
             parts = robot_observation_parts(masks, state.pos[None], target[None], state.carrying[None],
                                             self.view_radius, size)
             obs = expand_observations(*parts, self.view_radius)[0]
+        elif self.observe_window and self.row_windows:
+            obs = row_window_observation(state.walls, state.pos, target, state.carrying, self.view_radius, size)
         elif self.observe_window:
             obs = robot_observations(self.blocked(state), state.pos[None], target[None], state.carrying[None],
                                      self.view_radius, size)[0]
@@ -355,9 +381,7 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
             # one_hot of -1 (no action yet) is all zeros.
             obs = jnp.concatenate([obs, jax.nn.one_hot(state.last_action, NUM_ACTIONS, dtype=jnp.float32)])
         if self.observe_visited:
-            mask = row_shelf_masks(state.visited, state.pos[None], self.view_radius)[0]
-            bits = np.arange(window_size(self.view_radius) ** 2, dtype=np.int32)
-            obs = jnp.concatenate([obs, ((mask >> bits) & 1).astype(jnp.float32)])
+            obs = jnp.concatenate([obs, self.trail_window(state)])
         if not self.observe_map:
             return obs
         rows = jnp.arange(self.max_shape[0])[:, None]
@@ -366,6 +390,19 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         target_cell = (rows == target[0]) & (cols == target[1])
         full_map = jnp.stack([self.blocked(state), robot, target_cell]).astype(jnp.float32)
         return jnp.concatenate([obs, full_map.reshape(-1)])
+
+    def trail_window(self, state: ProceduralState) -> jax.Array:
+        """``((2V+1)^2,)`` float32: the visits to each window cell since the current target was set, times ``1 / L``.
+
+        Each bit plane of ``state.visited`` is read like the floor (:func:`window_rows`), and the
+        planes' bits are summed with their weights: exact small integers in float32.
+        """
+        count = 0.0
+        for plane in range(state.visited.shape[0]):
+            rows = window_rows(state.visited[plane], state.pos[None], self.view_radius)[0]
+            count = count + window_row_bits(rows) * np.float32(2**plane)
+        # times float32(1 / L), written out: XLA turns a division by a constant into this product anyway
+        return count if self.visit_levels == 1 else count * np.float32(1 / self.visit_levels)
 
     @property
     def visited_rows(self) -> int:
@@ -376,6 +413,15 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
     def bit_windows(self) -> bool:
         """True when the window comes from bit masks of the packed rows (``V <= 2``, walled rows of <= 32 cells)."""
         return row_windows_supported(self.max_shape[1], self.view_radius)
+
+    @property
+    def row_windows(self) -> bool:
+        """True when the window's rows are read from the packed rows (any ``V`` with walled rows of <= 32 cells).
+
+        For ``V <= 2`` the rows are packed once more into the fleet's int32 masks (:attr:`bit_windows`); past
+        that, :func:`~wrl_jax.core.observation.row_window_observation` expands the rows directly.
+        """
+        return window_rows_supported(self.max_shape[1], self.view_radius)
 
     def blocked(self, state: ProceduralState) -> jax.Array:
         """``(..., H, W)`` bool: the floor of ``state`` (or of a batch of states), shelves and off-grid cells True."""
@@ -392,7 +438,7 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         slots = jnp.arange(pool.size, dtype=jnp.int32)[:, None]
         items = jnp.arange(pool.layouts.items.shape[-2], dtype=jnp.int32)[None, :]
         slots, items = jnp.broadcast_arrays(slots, items)
-        first_state = partial(initial_state, visited_rows=self.visited_rows)
+        first_state = partial(initial_state, visited_rows=self.visited_rows, visit_levels=self.visit_levels)
         first = jax.vmap(jax.vmap(first_state, in_axes=(0, 0, None, None)),
                          in_axes=(0, 0, None, None))(slots, items, pool, walls)
         return jax.vmap(jax.vmap(self.observe))(first)
@@ -487,18 +533,18 @@ def draw_episode(key: jax.Array, num_items: jax.Array, pool_size: int) -> tuple[
 
 
 def initial_state(layout_index: jax.Array, item_index: jax.Array, pool: LayoutPool,
-                  walls: jax.Array, visited_rows: int = 0) -> ProceduralState:
+                  walls: jax.Array, visited_rows: int = 0, visit_levels: int = 1) -> ProceduralState:
     """The first state of the episode on pool slot ``layout_index`` with its item ``item_index``.
 
     ``walls`` is the pool's :meth:`ProceduralWarehouse.pool_walls` (``params.walls``);
-    ``visited_rows`` (static) is :attr:`ProceduralWarehouse.visited_rows`: with rows, the start is
-    the trail's first cell.
+    ``visited_rows`` and ``visit_levels`` (static) are :attr:`ProceduralWarehouse.visited_rows` and
+    ``visit_levels``: with rows, the start is the trail's first cell.
     """
     layout = jax.tree.map(lambda leaf: leaf[layout_index], pool.layouts)
     view_radius = (walls.shape[-2] - pool.layouts.blocked.shape[-2]) // 2
-    visited = jnp.zeros((visited_rows, 1), dtype=jnp.uint32)
+    visited = jnp.zeros((int(visit_levels).bit_length(), visited_rows, 1), dtype=jnp.uint32)
     if visited_rows:
-        visited = mark_cell(visited, layout.start, view_radius)
+        visited = count_visit(visited, layout.start, view_radius, visit_levels)
     return ProceduralState(
         walls=walls[layout_index],
         height=layout.height,
@@ -516,11 +562,18 @@ def initial_state(layout_index: jax.Array, item_index: jax.Array, pool: LayoutPo
     )
 
 
-def mark_cell(rows: jax.Array, cell: jax.Array, view_radius: int) -> jax.Array:
-    """``rows`` (packed like :func:`~wrl_jax.core.observation.wall_rows`, one word a row) with floor cell ``cell`` set."""
+def count_visit(planes: jax.Array, cell: jax.Array, view_radius: int, levels: int) -> jax.Array:
+    """``planes`` ``(B, H + 2V, 1)`` (a count per cell, bit ``k`` in plane ``k``) with ``cell``'s count
+    raised by one, saturating at ``levels``; the rows are packed like
+    :func:`~wrl_jax.core.observation.wall_rows`, one word a row. With ``levels = 1`` it sets the cell's bit."""
     row = cell[0] + view_radius
     bit = jnp.left_shift(jnp.uint32(1), (cell[1] + view_radius).astype(jnp.uint32))
-    return rows.at[row, 0].set(rows[row, 0] | bit)
+    words = planes[:, row, 0]
+    weights = np.left_shift(1, np.arange(planes.shape[0])).astype(np.int32)
+    count = jnp.sum(jnp.where((words & bit) != 0, weights, 0))
+    raised = jnp.minimum(count + 1, levels)
+    set_bit = ((raised & weights) != 0)
+    return planes.at[:, row, 0].set(jnp.where(set_bit, words | bit, words & ~bit))
 
 
 @partial(jax.jit, static_argnums=0)
