@@ -24,7 +24,9 @@ then ``--repeats`` timed calls, each ``block_until_ready``-ed, median reported):
    * ``procedural-scalars``: the same with ``observe_window=False`` (the five scalars only): per-env
      layouts without the window, to separate the two costs;
    * ``procedural-memory``: ``procedural`` with PPO's preset observation (``ppo.PROCEDURAL_ENV_DEFAULTS``:
-     the previous action and the trail channel, 109 values), what ``train_ppo.py`` steps.
+     the previous action and the trail channel counting visits, 109 values), what ``train_ppo.py`` steps;
+   * ``procedural-last-action`` and ``procedural-trail``: ``procedural`` with the previous action alone, and
+     with the yes/no trail alone, to separate what each part of the memory costs.
 4. The pool's memory per layout, and a refresh's cost against a rollout's.
 
 Run from the repository root::
@@ -172,10 +174,11 @@ def bench_steps(batch: int, horizon: int, repeats: int, pool_size: int) -> tuple
     one_env, one_params = make_from_layouts([study])
     gen_env, gen_params = make_procedural(pool_size=pool_size)
     scalar_env, scalar_params = make_procedural(pool_size=pool_size, observe_window=False)
-    memory_env, memory_params = make_procedural(pool_size=pool_size, **PROCEDURAL_ENV_DEFAULTS)
     cases = {"fixed": (fixed_env, fixed_params), "procedural-1": (one_env, one_params),
              "procedural": (gen_env, gen_params), "procedural-scalars": (scalar_env, scalar_params),
-             "procedural-memory": (memory_env, memory_params)}
+             "procedural-memory": make_procedural(pool_size=pool_size, **PROCEDURAL_ENV_DEFAULTS),
+             "procedural-last-action": make_procedural(pool_size=pool_size, observe_last_action=True),
+             "procedural-trail": make_procedural(pool_size=pool_size, observe_visited=True)}
     runs = {}
     for name, (env, params) in cases.items():
         keys = jax.random.split(jax.random.key(1), batch)
@@ -198,7 +201,7 @@ def bench_steps(batch: int, horizon: int, repeats: int, pool_size: int) -> tuple
         rows.append({"env": name, "batch": batch, "horizon": horizon, "compile_s": round(run["compile_s"], 2),
                      "median_s": statistics.median(run["times"]), "steps_per_s": rate,
                      "ratio_to_fixed": rate / fixed_rate})
-        print(f"steps {name:18s} batch={batch}: {rate / 1e6:.2f} M steps/s, {rate / fixed_rate:.2f}x fixed "
+        print(f"steps {name:22s} batch={batch}: {rate / 1e6:.2f} M steps/s, {rate / fixed_rate:.2f}x fixed "
               f"(compile {run['compile_s']:.1f} s)", flush=True)
     # A refresh of the whole pool, against one rollout of the generated-layout case.
     compile_s, times, _ = timed(lambda key, params: gen_env.refresh_pool(key, params), jax.random.key(3),

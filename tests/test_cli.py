@@ -160,10 +160,10 @@ def test_an_environment_may_bring_its_own_default_preset(tmp_path):
     procedural = cli.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--out", str(tmp_path / "a")])
     assert procedural.run.preset == "procedural" and procedural.config.obs_encoding == "raw"
     # ... and its environment default: the previous action in the observation, recorded as an override.
-    assert procedural.env.overrides() == {"observe_last_action": True, "observe_visited": True}
+    assert procedural.env.overrides() == {"observe_last_action": True, "observe_visited": True, "visit_levels": 3}
     plain = cli.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--observe-last-action", "False",
-                              "--observe-visited", "False", "--out", str(tmp_path / "e")])
-    assert plain.env.overrides() == {"observe_last_action": False, "observe_visited": False}
+                              "--observe-visited", "False", "--visit-levels", "1", "--out", str(tmp_path / "e")])
+    assert plain.env.overrides() == {"observe_last_action": False, "observe_visited": False, "visit_levels": 1}
     study = cli.parse("ppo", ["--out", str(tmp_path / "b")])
     assert study.run.preset == "default" and study.config.obs_encoding == "onehot"
     chosen = cli.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--preset", "default", "--out", str(tmp_path / "c")])

@@ -37,7 +37,7 @@ def procedural_run(tmp_path_factory):
                                  update_epochs=1, total_timesteps=256)
     # The preset's observation (the previous action too): evaluate must rebuild it from env_overrides.
     algo = build(spec, config, EnvOptions(env="Procedural-Warehouse-v0", **ppo.PROCEDURAL_ENV_DEFAULTS))
-    assert algo.env.observe_last_action and algo.env.observe_visited
+    assert algo.env.observe_last_action and algo.env.observe_visited and algo.env.visit_levels == 3
     trainer = training.Trainer(algo, [3, 4], training.LoopConfig(progress=False))
     out = tmp_path_factory.mktemp("procedural-run")
     checkpoint.save(out, trainer.host_state(trainer.init()), {

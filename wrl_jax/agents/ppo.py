@@ -676,22 +676,23 @@ PROCEDURAL = dataclasses.replace(
     ent_coef=0.0,  # no entropy bonus: a sharper policy trains closer to the greedy one that is evaluated
     total_timesteps=2_500_000,  # 1,220 updates; 4 seeds in 11 minutes on the shared 2-core CPU
 )
-"""The default for ``Procedural-Warehouse-v0``, the best of three measured runs (docs/procedural.md).
+"""The default for ``Procedural-Warehouse-v0`` (docs/procedural.md has the runs that chose it).
 
-With the observation of :data:`PROCEDURAL_ENV_DEFAULTS`, 4 seeds: 97.7 % of 1,024 held-out layouts'
-episodes delivered greedily (97.6-97.9 % per seed), 6.1 % mean excess over the BFS optimum, 9 min 2 s;
-with the previous action alone 95.2 % and 6.8 %; with the plain robot observation 78 % and 1.7 % (the
-greedy policy oscillated between two cells)."""
+With the observation of :data:`PROCEDURAL_ENV_DEFAULTS`, seeds 0-3: 99.3 % of 1,024 held-out layouts'
+episodes delivered greedily (99.2-99.4 % per seed), 8.2 % mean excess over the BFS optimum, 6 min 23 s;
+with a yes/no trail 97.7 % and 6.1 %; with the previous action alone 95.2 % and 6.8 %; with the plain
+robot observation 78 % and 1.7 % (the greedy policy oscillated between two cells)."""
 
-PROCEDURAL_ENV_DEFAULTS = {"observe_last_action": True, "observe_visited": True}
+PROCEDURAL_ENV_DEFAULTS = {"observe_last_action": True, "observe_visited": True, "visit_levels": 3}
 """What ``python train_ppo.py --env Procedural-Warehouse-v0`` changes in the environment unless told otherwise.
 
 Memory of the robot's own moves, appended to the robot observation: its previous action, one-hot, and a
-window channel of the cells it stood on since its current target was set. A memoryless greedy policy
-with a 5x5 window meets the same observation at both cells of a dead end whose far wall it sees from
-one of them only, and went back and forth there on 22 % of held-out episodes (docs/procedural.md).
-Not planner features: the robot's own trail. ``--observe-last-action False --observe-visited False``
-trains on the plain observation."""
+window channel counting its visits to each cell (up to 3) since its current target was set. A memoryless
+greedy policy with a 5x5 window meets the same observation at both cells of a dead end whose far wall it
+sees from one of them only, and went back and forth there on 22 % of held-out episodes; with a yes/no
+trail a loop looks the same on every lap once it is marked, and 2.3 % of episodes still looped; counts
+make every lap look different (docs/procedural.md). Not planner features: the robot's own trail.
+``--observe-last-action False --observe-visited False --visit-levels 1`` trains on the plain observation."""
 
 FLEET = dataclasses.replace(
     DEFAULT,

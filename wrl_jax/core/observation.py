@@ -274,13 +274,30 @@ def window_rows(rows: jax.Array, pos: jax.Array, view_radius: int) -> jax.Array:
     shift and a mask per robot, for any radius whose walled rows fit one word
     (:func:`window_rows_supported`). :func:`row_shelf_masks` packs them into one int32 for ``V <= 2``.
     """
-    radius = int(view_radius)
-    side = window_size(radius)
     if rows.shape[-1] != 1:
         raise ValueError(f"window rows need one word per walled row; got {rows.shape[-1]} words")
+    return plane_window_rows(rows, pos, view_radius)[..., 0]
+
+
+def plane_window_rows(planes: jax.Array, pos: jax.Array, view_radius: int) -> jax.Array:
+    """``(K, 2V+1, P)`` uint32: :func:`window_rows` of ``P`` planes at once, ``planes`` ``(H + 2V, P)``.
+
+    Each column of ``planes`` is a grid of one-word walled rows (the floor, a trail's bit planes);
+    the ``2V + 1`` rows a window covers are gathered once for every plane (a gather costs per index,
+    not per word), then shifted and cut.
+    """
+    radius = int(view_radius)
+    side = window_size(radius)
     offsets = np.arange(side)
-    words = rows[pos[:, 0, None] + offsets[None, :], 0]  # (K, side): the walled rows the windows cover
-    return (words >> pos[:, 1, None].astype(jnp.uint32)) & np.uint32((1 << side) - 1)
+    words = planes[pos[:, 0, None] + offsets[None, :]]  # (K, side, P): the walled rows the windows cover
+    return (words >> pos[:, 1, None, None].astype(jnp.uint32)) & np.uint32((1 << side) - 1)
+
+
+def pack_window_rows(rows: jax.Array) -> jax.Array:
+    """``(K,)`` int32 of :func:`window_rows`' ``(K, side)``: row ``r`` at bits ``r side .. r side + side - 1``."""
+    side = rows.shape[-1]
+    shifted = rows << (np.arange(side) * side).astype(np.uint32)
+    return jax.lax.reduce(shifted, np.uint32(0), jax.lax.bitwise_or, (1,)).astype(jnp.int32)
 
 
 def window_row_bits(rows: jax.Array) -> jax.Array:
@@ -297,28 +314,26 @@ def row_shelf_masks(rows: jax.Array, pos: jax.Array, view_radius: int) -> jax.Ar
     :func:`window_rows` packed side by side. Needs :func:`row_windows_supported`.
     """
     radius = int(view_radius)
-    side = window_size(radius)
     if not bit_windows_supported(radius) or rows.shape[-1] != 1:
         raise ValueError(f"row shelf masks need view_radius <= 2 and one word per walled row; got view_radius "
                          f"{radius} and {rows.shape[-1]} words")
-    shifted = window_rows(rows, pos, radius) << (np.arange(side) * side).astype(np.uint32)
-    return jax.lax.reduce(shifted, np.uint32(0), jax.lax.bitwise_or, (1,)).astype(jnp.int32)
+    return pack_window_rows(window_rows(rows, pos, radius))
 
 
-def row_window_observation(rows: jax.Array, pos: jax.Array, target: jax.Array, carrying: jax.Array,
+def row_window_observation(window: jax.Array, pos: jax.Array, target: jax.Array, carrying: jax.Array,
                            view_radius: int, size: int) -> jax.Array:
-    """One robot's :func:`robot_observations` (``K = 1``, no other robot), bit for bit, from its floor's packed rows.
+    """One robot's :func:`robot_observations` (``K = 1``, no other robot), bit for bit, from its window's rows.
 
     For radii past the one-int32 mask of :func:`robot_observation_parts` (``V >= 3``): the shelf
-    channel from :func:`window_rows`, an empty robot channel, the target channel by comparing the
-    window's cells with the target. ``rows``: :func:`wall_rows` of the floor; ``pos``, ``target``:
-    ``(2,)`` int32; ``carrying``: bool.
+    channel from the window's rows (``window``: ``(2V+1,)`` uint32, :func:`window_rows` of the
+    floor's :func:`wall_rows` for this robot), an empty robot channel, the target channel by
+    comparing the window's cells with the target. ``pos``, ``target``: ``(2,)`` int32; ``carrying``: bool.
     """
     radius = int(view_radius)
     side = window_size(radius)
     table = jnp.asarray(coordinate_table(size))
     scalars = jnp.concatenate([table[pos], table[target], carrying.astype(jnp.float32)[None]])
-    shelves = window_row_bits(window_rows(rows, pos[None], radius)[0])
+    shelves = window_row_bits(window)
     offsets = np.arange(side) - radius
     target_cell = (pos[0] + offsets[:, None] == target[0]) & (pos[1] + offsets[None, :] == target[1])
     robots = jnp.zeros(side * side, jnp.float32)

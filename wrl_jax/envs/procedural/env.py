@@ -57,9 +57,10 @@ from wrl_jax.core.observation import (
     coordinate_table,
     expand_observations,
     observation_size,
+    pack_window_rows,
+    plane_window_rows,
     robot_observation_parts,
     robot_observations,
-    row_shelf_masks,
     row_window_observation,
     row_windows_supported,
     unpack_wall_rows,
@@ -67,7 +68,6 @@ from wrl_jax.core.observation import (
     wall_rows,
     wall_words,
     window_row_bits,
-    window_rows,
     window_rows_supported,
     window_size,
 )
@@ -209,7 +209,8 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
             raise ValueError(f"visit_levels must be in 1..{MAX_VISIT_LEVELS}, got {visit_levels}")
         if self.visit_levels > 1 and not self.observe_visited:
             raise ValueError(f"visit_levels={self.visit_levels} counts the visits of the trail channel: it needs "
-                             f"observe_visited=True")
+                             f"observe_visited=True (without the trail, pass --visit-levels 1 with "
+                             f"--observe-visited False)")
         if self.observe_visited and not (self.observe_window and self.row_windows):
             raise ValueError(f"observe_visited needs the packed-row window: a padded width of at most "
                              f"{32 - 2 * self.view_radius} at view_radius={self.view_radius} (walled rows of one "
@@ -364,13 +365,20 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         """
         target = jnp.where(state.carrying, state.goal, state.item_pos)
         size = max(self.max_shape)
+        if self.observe_window and self.row_windows:
+            # The floor and the trail's bit planes side by side: one gather of the window's rows for all.
+            planes = state.walls
+            if self.observe_visited:
+                planes = jnp.concatenate([planes, state.visited[:, :, 0].T], axis=1)
+            window = plane_window_rows(planes, state.pos[None], self.view_radius)[0]  # (2V+1, 1 + B)
+            trail = window[:, 1:]
         if self.observe_window and self.bit_windows:
-            masks = row_shelf_masks(state.walls, state.pos[None], self.view_radius)
+            masks = pack_window_rows(window[None, :, 0])
             parts = robot_observation_parts(masks, state.pos[None], target[None], state.carrying[None],
                                             self.view_radius, size)
             obs = expand_observations(*parts, self.view_radius)[0]
         elif self.observe_window and self.row_windows:
-            obs = row_window_observation(state.walls, state.pos, target, state.carrying, self.view_radius, size)
+            obs = row_window_observation(window[:, 0], state.pos, target, state.carrying, self.view_radius, size)
         elif self.observe_window:
             obs = robot_observations(self.blocked(state), state.pos[None], target[None], state.carrying[None],
                                      self.view_radius, size)[0]
@@ -380,8 +388,8 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         if self.observe_last_action:
             # one_hot of -1 (no action yet) is all zeros.
             obs = jnp.concatenate([obs, jax.nn.one_hot(state.last_action, NUM_ACTIONS, dtype=jnp.float32)])
-        if self.observe_visited:
-            obs = jnp.concatenate([obs, self.trail_window(state)])
+        if self.observe_visited:  # (it needs the packed-row window: checked in __init__)
+            obs = jnp.concatenate([obs, self.trail_window(trail)])
         if not self.observe_map:
             return obs
         rows = jnp.arange(self.max_shape[0])[:, None]
@@ -391,16 +399,16 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         full_map = jnp.stack([self.blocked(state), robot, target_cell]).astype(jnp.float32)
         return jnp.concatenate([obs, full_map.reshape(-1)])
 
-    def trail_window(self, state: ProceduralState) -> jax.Array:
+    def trail_window(self, trail: jax.Array) -> jax.Array:
         """``((2V+1)^2,)`` float32: the visits to each window cell since the current target was set, times ``1 / L``.
 
-        Each bit plane of ``state.visited`` is read like the floor (:func:`window_rows`), and the
-        planes' bits are summed with their weights: exact small integers in float32.
+        ``trail``: ``(2V+1, B)``, the window's rows of each bit plane of ``state.visited`` (read with
+        the floor's, :func:`~wrl_jax.core.observation.plane_window_rows`); the planes' bits are summed
+        with their weights: exact small integers in float32.
         """
         count = 0.0
-        for plane in range(state.visited.shape[0]):
-            rows = window_rows(state.visited[plane], state.pos[None], self.view_radius)[0]
-            count = count + window_row_bits(rows) * np.float32(2**plane)
+        for plane in range(trail.shape[1]):
+            count = count + window_row_bits(trail[:, plane]) * np.float32(2**plane)
         # times float32(1 / L), written out: XLA turns a division by a constant into this product anyway
         return count if self.visit_levels == 1 else count * np.float32(1 / self.visit_levels)
 
@@ -565,15 +573,19 @@ def initial_state(layout_index: jax.Array, item_index: jax.Array, pool: LayoutPo
 def count_visit(planes: jax.Array, cell: jax.Array, view_radius: int, levels: int) -> jax.Array:
     """``planes`` ``(B, H + 2V, 1)`` (a count per cell, bit ``k`` in plane ``k``) with ``cell``'s count
     raised by one, saturating at ``levels``; the rows are packed like
-    :func:`~wrl_jax.core.observation.wall_rows`, one word a row. With ``levels = 1`` it sets the cell's bit."""
-    row = cell[0] + view_radius
+    :func:`~wrl_jax.core.observation.wall_rows`, one word a row. With ``levels = 1`` it sets the cell's bit.
+
+    Written with a row mask instead of an indexed read and write: under ``vmap`` (every step of every
+    environment) those become a gather and a scatter, while this is one elementwise pass over the
+    ``B (H + 2V)`` words that XLA fuses with the rest of the step.
+    """
+    row = jnp.arange(planes.shape[1], dtype=jnp.int32)[None, :, None] == cell[0] + view_radius
     bit = jnp.left_shift(jnp.uint32(1), (cell[1] + view_radius).astype(jnp.uint32))
-    words = planes[:, row, 0]
     weights = np.left_shift(1, np.arange(planes.shape[0])).astype(np.int32)
-    count = jnp.sum(jnp.where((words & bit) != 0, weights, 0))
-    raised = jnp.minimum(count + 1, levels)
-    set_bit = ((raised & weights) != 0)
-    return planes.at[:, row, 0].set(jnp.where(set_bit, words | bit, words & ~bit))
+    has_bit = jnp.any(row & ((planes & bit) != 0), axis=(1, 2))  # (B,): the cell's count, bit by bit
+    count = jnp.sum(jnp.where(has_bit, weights, 0))
+    set_bit = ((jnp.minimum(count + 1, levels) & weights) != 0)[:, None, None]
+    return jnp.where(row, jnp.where(set_bit, planes | bit, planes & ~bit), planes)
 
 
 @partial(jax.jit, static_argnums=0)
