@@ -93,7 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     print("|---|" + "---:|" * (len(CLASSES) + 1))
     for policy in ("greedy", "sampled"):
         row = report[policy]
-        print(f"| {policy} | " + " | ".join(f"{row['mean'][name]:.2f}" for name in CLASSES) + f" | {row['total']:.2f} |")
+        cells = " | ".join(f"{row['mean'][name]:.2f}" for name in CLASSES)
+        print(f"| {policy} | {cells} | {row['total']:.2f} |")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(report, indent=2) + "\n")

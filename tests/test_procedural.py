@@ -526,7 +526,8 @@ def test_packed_wall_rows_agree_with_the_grid_and_the_fleet_masks():
     """``wall_rows`` round-trips (one word and two words a row), ``wall_bit`` reads it, and the row masks
     equal ``window_masks`` at every cell (the fleet's table), off-grid ring included."""
     from wrl_jax.core.observation import (
-        row_shelf_masks,
+        pack_window_rows,
+        plane_window_rows,
         row_windows_supported,
         unpack_wall_rows,
         wall_bit,
@@ -547,9 +548,8 @@ def test_packed_wall_rows_agree_with_the_grid_and_the_fleet_masks():
         assert row_windows_supported(width, radius) == (rows.shape[1] == 1)
         if rows.shape[1] == 1:
             expected = np.asarray(window_masks(floor, radius))[mine[:, 0], mine[:, 1]]
-            np.testing.assert_array_equal(np.asarray(row_shelf_masks(rows, jnp.asarray(mine), radius)), expected)
-    with pytest.raises(ValueError, match="one word per walled row"):
-        row_shelf_masks(wall_rows(jnp.asarray(grid), 2), jnp.zeros((1, 2), jnp.int32), 2)
+            masks = pack_window_rows(plane_window_rows(rows, jnp.asarray(mine), radius)[..., 0])
+            np.testing.assert_array_equal(np.asarray(masks), expected)
 
 
 def test_reset_draws_slot_and_item_from_jax_random_bits(env_and_params):

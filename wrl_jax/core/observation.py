@@ -90,7 +90,7 @@ def egocentric_windows(blocked: jax.Array, pos: jax.Array, target: jax.Array, vi
 # ----------------------------------------------------------------- the same windows, as bit masks
 MAX_BIT_WINDOW = 31
 """Most window cells a mask holds: bits 0..30 of an int32 (so ``V <= 2``; larger radii use the gathers above,
-or :func:`window_rows` on packed floors)."""
+or :func:`plane_window_rows` on packed floors)."""
 
 
 def bit_windows_supported(view_radius: int) -> bool:
@@ -219,12 +219,13 @@ def wall_words(width: int, view_radius: int) -> int:
 
 
 def row_windows_supported(width: int, view_radius: int) -> bool:
-    """True when :func:`row_shelf_masks` applies: the window fits a mask and a walled row fits one word."""
+    """True when :func:`pack_window_rows` makes the fleet's int32 mask of a window read by :func:`plane_window_rows`:
+    the window fits a mask and a walled row fits one word."""
     return bit_windows_supported(view_radius) and wall_words(width, view_radius) == 1
 
 
 def window_rows_supported(width: int, view_radius: int) -> bool:
-    """True when :func:`window_rows` applies: a walled row of ``W + 2V`` cells fits one word (any ``V``)."""
+    """True when :func:`plane_window_rows` applies: a walled row of ``W + 2V`` cells fits one word (any ``V``)."""
     return wall_words(width, view_radius) == 1
 
 
@@ -235,7 +236,7 @@ def wall_rows(blocked: jax.Array, view_radius: int) -> jax.Array:
     cannot share :func:`window_masks`' ``(H, W)`` int32 table between episodes, and copying a
     table into every state costs 4 bytes a cell at every auto-reset. The walled rows are
     ``4 (H + 2V)`` bytes (80 at 16x16, ``V = 2``: less than the floor as a bool grid), and one
-    robot's shelf mask is ``2V + 1`` words shifted and masked (:func:`row_shelf_masks`). Bit ``b``
+    robot's shelf mask is ``2V + 1`` words shifted and masked (:func:`plane_window_rows`). Bit ``b``
     of word ``k`` of row ``r`` is walled cell ``(r, 32 k + b)``, i.e. floor cell
     ``(r - V, 32 k + b - V)``: set when it is blocked or off the grid; bits past the walled width are 0.
     """
@@ -266,25 +267,14 @@ def wall_bit(rows: jax.Array, cell: jax.Array, view_radius: int) -> jax.Array:
     return ((word >> (col % WORD_BITS).astype(jnp.uint32)) & 1).astype(bool)
 
 
-def window_rows(rows: jax.Array, pos: jax.Array, view_radius: int) -> jax.Array:
-    """``(K, 2V+1)`` uint32: the window rows around each robot, bit ``c`` of row ``r`` = offset ``(r - V, c - V)``.
-
-    Window row ``r`` is walled row ``pos_r + r`` of :func:`wall_rows`' output (or of any rows packed the
-    same way: a trail), shifted right by ``pos_c`` and cut to ``2V + 1`` bits: ``2V + 1`` word gathers, a
-    shift and a mask per robot, for any radius whose walled rows fit one word
-    (:func:`window_rows_supported`). :func:`row_shelf_masks` packs them into one int32 for ``V <= 2``.
-    """
-    if rows.shape[-1] != 1:
-        raise ValueError(f"window rows need one word per walled row; got {rows.shape[-1]} words")
-    return plane_window_rows(rows, pos, view_radius)[..., 0]
-
-
 def plane_window_rows(planes: jax.Array, pos: jax.Array, view_radius: int) -> jax.Array:
-    """``(K, 2V+1, P)`` uint32: :func:`window_rows` of ``P`` planes at once, ``planes`` ``(H + 2V, P)``.
+    """``(K, 2V+1, P)`` uint32: the window rows around each robot in each of ``P`` planes ``(H + 2V, P)``.
 
-    Each column of ``planes`` is a grid of one-word walled rows (the floor, a trail's bit planes);
-    the ``2V + 1`` rows a window covers are gathered once for every plane (a gather costs per index,
-    not per word), then shifted and cut.
+    Each column of ``planes`` is a grid of one-word walled rows packed like :func:`wall_rows` (the
+    floor, a trail's bit planes; :func:`window_rows_supported`). Window row ``r`` of a plane is its
+    walled row ``pos_r + r`` shifted right by ``pos_c`` and cut to ``2V + 1`` bits: bit ``c`` is the
+    offset ``(r - V, c - V)``. The ``2V + 1`` rows are gathered once for every plane (a gather costs
+    per index, not per word).
     """
     radius = int(view_radius)
     side = window_size(radius)
@@ -294,30 +284,20 @@ def plane_window_rows(planes: jax.Array, pos: jax.Array, view_radius: int) -> ja
 
 
 def pack_window_rows(rows: jax.Array) -> jax.Array:
-    """``(K,)`` int32 of :func:`window_rows`' ``(K, side)``: row ``r`` at bits ``r side .. r side + side - 1``."""
+    """``(K,)`` int32 of one plane's window rows ``(K, side)``: row ``r`` at bits ``r side .. r side + side - 1``.
+
+    For ``V <= 2`` this is :func:`window_masks` read at the robot's cell (the fleet's shelf mask).
+    """
     side = rows.shape[-1]
     shifted = rows << (np.arange(side) * side).astype(np.uint32)
     return jax.lax.reduce(shifted, np.uint32(0), jax.lax.bitwise_or, (1,)).astype(jnp.int32)
 
 
 def window_row_bits(rows: jax.Array) -> jax.Array:
-    """``(..., side * side)`` float32 of :func:`window_rows`' ``(..., side)`` words: one window channel, row-major."""
+    """``(..., side * side)`` float32 of one plane's window rows ``(..., side)``: one window channel, row-major."""
     side = rows.shape[-1]
     bits = (rows[..., :, None] >> np.arange(side, dtype=np.uint32)) & np.uint32(1)
     return bits.astype(jnp.float32).reshape(*rows.shape[:-1], side * side)
-
-
-def row_shelf_masks(rows: jax.Array, pos: jax.Array, view_radius: int) -> jax.Array:
-    """``(K,)`` int32: :func:`window_masks` of the floor read at each robot's cell, from :func:`wall_rows`.
-
-    The same bits (window cell ``w = row (2V+1) + col`` is offset ``(row - V, col - V)``): the
-    :func:`window_rows` packed side by side. Needs :func:`row_windows_supported`.
-    """
-    radius = int(view_radius)
-    if not bit_windows_supported(radius) or rows.shape[-1] != 1:
-        raise ValueError(f"row shelf masks need view_radius <= 2 and one word per walled row; got view_radius "
-                         f"{radius} and {rows.shape[-1]} words")
-    return pack_window_rows(window_rows(rows, pos, radius))
 
 
 def row_window_observation(window: jax.Array, pos: jax.Array, target: jax.Array, carrying: jax.Array,
@@ -325,7 +305,7 @@ def row_window_observation(window: jax.Array, pos: jax.Array, target: jax.Array,
     """One robot's :func:`robot_observations` (``K = 1``, no other robot), bit for bit, from its window's rows.
 
     For radii past the one-int32 mask of :func:`robot_observation_parts` (``V >= 3``): the shelf
-    channel from the window's rows (``window``: ``(2V+1,)`` uint32, :func:`window_rows` of the
+    channel from the window's rows (``window``: ``(2V+1,)`` uint32, :func:`plane_window_rows` of the
     floor's :func:`wall_rows` for this robot), an empty robot channel, the target channel by
     comparing the window's cells with the target. ``pos``, ``target``: ``(2,)`` int32; ``carrying``: bool.
     """

@@ -33,7 +33,7 @@ switch. What differs is where the layout comes from and what is observed:
   trail of a loop then changes on every lap, so a deterministic policy that
   meets it again is not bound to repeat itself.
   For ``V <= 2`` (and walled rows of at most 32 cells) the window is computed
-  from the packed rows as int32 bit masks (:func:`wrl_jax.core.observation.row_shelf_masks`,
+  from the packed rows as int32 bit masks (:func:`wrl_jax.core.observation.pack_window_rows`,
   then the fleet's :func:`~wrl_jax.core.observation.expand_observations`), bit for bit
   the same observation, many times cheaper under ``vmap`` than the gathers; for larger
   ``V`` (walled rows still of at most 32 cells) the window's rows are read from the

@@ -52,7 +52,8 @@ def make_params(env: ProceduralWarehouse, pool: LayoutPool, *, max_steps: int = 
 def make_procedural(*, seed: int = 0, pool_size: int = 1024, pool_refresh: int = 0,
                     max_shape: tuple[int, int] = (16, 16), view_radius: int = 2, observe_map: bool = False,
                     observe_window: bool = True, observe_last_action: bool = False, observe_visited: bool = False,
-                    visit_levels: int = 1, max_steps: int = DEFAULT_MAX_STEPS, **overrides) -> tuple[ProceduralWarehouse, ProceduralParams]:
+                    visit_levels: int = 1, max_steps: int = DEFAULT_MAX_STEPS,
+                    **overrides) -> tuple[ProceduralWarehouse, ProceduralParams]:
     """``(env, params)``: a pool of ``pool_size`` generated layouts, drawn from ``seed``.
 
     ``pool_refresh``: slots a learner renews before every update, from the same seed's
@@ -88,7 +89,8 @@ def make_procedural(*, seed: int = 0, pool_size: int = 1024, pool_refresh: int =
 def make_from_layouts(layouts: Sequence[PaddedLayout], *, pool_size: int | None = None, view_radius: int = 2,
                       observe_map: bool = False, observe_window: bool = True, observe_last_action: bool = False,
                       observe_visited: bool = False, visit_levels: int = 1, max_steps: int = DEFAULT_MAX_STEPS,
-                      generator: GeneratorConfig | None = None, **rewards: float) -> tuple[ProceduralWarehouse, ProceduralParams]:
+                      generator: GeneratorConfig | None = None,
+                      **rewards: float) -> tuple[ProceduralWarehouse, ProceduralParams]:
     """``(env, params)`` over given layouts (all of one padded shape), cycled to ``pool_size`` slots.
 
     ``generator`` is what :meth:`ProceduralWarehouse.refresh_pool` would draw
