@@ -575,9 +575,9 @@ def count_visit(planes: jax.Array, cell: jax.Array, view_radius: int, levels: in
     raised by one, saturating at ``levels``; the rows are packed like
     :func:`~wrl_jax.core.observation.wall_rows`, one word a row. With ``levels = 1`` it sets the cell's bit.
 
-    Written with a row mask instead of an indexed read and write: under ``vmap`` (every step of every
-    environment) those become a gather and a scatter, while this is one elementwise pass over the
-    ``B (H + 2V)`` words that XLA fuses with the rest of the step.
+    Written with a row mask (one elementwise pass over the ``B (H + 2V)`` words) instead of an indexed
+    read and write, which ``vmap`` turns into a gather and a scatter; the two measured the same
+    (docs/procedural.md), and this form needs no index arithmetic per plane.
     """
     row = jnp.arange(planes.shape[1], dtype=jnp.int32)[None, :, None] == cell[0] + view_radius
     bit = jnp.left_shift(jnp.uint32(1), (cell[1] + view_radius).astype(jnp.uint32))

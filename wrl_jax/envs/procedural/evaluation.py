@@ -435,7 +435,7 @@ def final_report(context: FinalContext) -> dict[str, Any]:
     report = evaluate_sets(context.algo.greedy_action, context.network_params, env, params, sets, context.seeds)
     result = {"heldout": {**report.pop("heldout"), "overlap_with_training": overlap},
               "training_layouts": int(seen.size), "ood": report}
-    if getattr(context.algo, "has_stochastic_policy", False):
+    if context.algo.has_stochastic_policy:
         sampled = evaluate_sets(context.algo.greedy_action, context.network_params, env, params, [heldout],
                                 context.seeds, sample_action=context.algo.sample_action,
                                 key=jax.random.fold_in(jax.random.key(EVAL_SEED), 5))
