@@ -293,6 +293,79 @@ def test_priority_channel_shows_the_robots_with_a_lower_index():
         make_fleet(maps.FLEET_12X12, 4, view_radius=3, observe_priority=True)
 
 
+def test_last_action_memory_is_the_previous_action_and_its_block():
+    """``observe_last_action``: FLEET_SPEC's observation unchanged, then the previous action one-hot and whether
+    it was blocked, on the vmapped step (auto-reset: zeros again), ``final_obs``, ``transition`` and ``get_obs``."""
+    plain_env, params = make_fleet(maps.FLEET_12X12, 4, max_steps=20)
+    env, _ = make_fleet(maps.FLEET_12X12, 4, max_steps=20, observe_last_action=True)
+    assert env.obs_size == plain_env.obs_size + 6 and env.static_config() != plain_env.static_config()
+    assert "last_action" in env.state_space(params).spaces and "observe_last_action=True" in repr(env)
+
+    def rollout(env):
+        def step(state, key):
+            action = jax.random.randint(key, (4,), 0, 5)
+            obs, state, reward, _, truncated, info = env.step(key, state, action, params)
+            return state, (obs, info["final_obs"], action, info["robot_block"], reward, truncated)
+
+        _, state = env.reset(jax.random.key(4), params)
+        return jax.lax.scan(step, state, jax.random.split(jax.random.key(5), 64))[1]
+
+    obs, final_obs, action, blocked, reward, truncated = jax.tree.map(np.asarray, jax.jit(functools.partial(rollout, env))())
+    plain = jax.tree.map(np.asarray, jax.jit(functools.partial(rollout, plain_env))())
+    np.testing.assert_array_equal(obs[..., :plain_env.obs_size], plain[0])
+    np.testing.assert_array_equal(final_obs[..., :plain_env.obs_size], plain[1])
+    np.testing.assert_array_equal(reward, plain[4])
+    expected_final = np.concatenate([np.eye(5, dtype=np.float32)[action], blocked[..., None]], axis=-1)
+    np.testing.assert_array_equal(final_obs[..., plain_env.obs_size:], expected_final)
+    expected = np.where(truncated[:, None, None], 0.0, expected_final)  # a new shift remembers nothing
+    np.testing.assert_array_equal(obs[..., plain_env.obs_size:], expected)
+    assert truncated.sum() == 3 and blocked.sum() > 0  # auto-resets and blocks happened in the rollout
+    first_obs, first_state = env.reset(jax.random.key(4), params)
+    assert not np.asarray(first_obs)[:, plain_env.obs_size:].any()
+    np.testing.assert_array_equal(np.asarray(env.get_obs(first_state, params)), np.asarray(first_obs))
+    move = jnp.array([3, 7, 0, 4], jnp.int32)  # 7 is outside 0..4: inside jit it waits, and is remembered as a wait
+    obs, state, *_ = jax.jit(env.transition)(jax.random.key(6), first_state, move, params)
+    np.testing.assert_array_equal(np.asarray(state.last_action), [3, 4, 0, 4])
+    np.testing.assert_array_equal(np.asarray(obs)[:, plain_env.obs_size:plain_env.obs_size + 5],
+                                  np.eye(5)[[3, 4, 0, 4]])
+
+
+def test_heading_channel_shows_where_the_others_would_go_by_repeating_their_last_action():
+    """``observe_headings``: after the plain window channels, a channel of each other robot's cell plus its
+    previous move (its own cell after a wait or at the start of a shift), on the vmapped step with auto-resets."""
+    plain_env, params = make_fleet(maps.FLEET_12X12, 4, max_steps=20)
+    env, _ = make_fleet(maps.FLEET_12X12, 4, max_steps=20, observe_headings=True)
+    assert env.obs_size == plain_env.obs_size + 25 and "observe_headings=True" in repr(env)
+
+    def rollout(env):
+        def step(state, key):
+            action = jax.random.randint(key, (4,), 0, 5)
+            obs, state, reward, _, truncated, info = env.step(key, state, action, params)
+            return state, (obs, state.pos, action, reward, truncated)
+
+        _, state = env.reset(jax.random.key(4), params)
+        return jax.lax.scan(step, state, jax.random.split(jax.random.key(5), 64))[1]
+
+    obs, pos, action, reward, truncated = jax.tree.map(np.asarray, jax.jit(functools.partial(rollout, env))())
+    plain = jax.tree.map(np.asarray, jax.jit(functools.partial(rollout, plain_env))())
+    np.testing.assert_array_equal(obs[..., :plain_env.obs_size], plain[0])
+    np.testing.assert_array_equal(reward, plain[3])
+    headings = obs[..., plain_env.obs_size:].reshape(64, 4, 5, 5)
+    expected = np.zeros_like(headings)
+    for t in range(64):
+        move = np.zeros((4, 2), int) if truncated[t] else MOVES_WITH_WAIT[action[t]]  # a new shift: no last move
+        for i in range(4):
+            for j in range(4):
+                d_row, d_col = pos[t, j] + move[j] - pos[t, i]
+                if j != i and abs(d_row) <= 2 and abs(d_col) <= 2:
+                    expected[t, i, d_row + 2, d_col + 2] = 1
+    np.testing.assert_array_equal(headings, expected)
+    robots = obs[..., 5 + 25:5 + 50].reshape(64, 4, 5, 5)
+    assert expected.sum() > 20 and (headings != robots).any() and truncated.sum() == 3
+    with pytest.raises(ValueError, match="observe_headings needs the bit-mask window"):
+        make_fleet(maps.FLEET_12X12, 4, view_radius=3, observe_headings=True)
+
+
 def test_global_state_layout():
     env, params = make_fleet(maps.FLEET_12X12, 4)
     obs, state = jax.jit(env.reset)(jax.random.key(1))

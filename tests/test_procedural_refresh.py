@@ -139,8 +139,14 @@ def test_bad_refresh_settings_fail_clearly(small, tmp_path):
         parse("ppo", ["--env", "Warehouse-8x8-v0", "--pool-refresh", "4", "--out", str(tmp_path / "a")])
     with pytest.raises(ValueError, match="--view-radius: fleet or procedural options"):
         parse("ppo", ["--env", "Warehouse-8x8-v0", "--view-radius", "1", "--out", str(tmp_path / "b")])
-    with pytest.raises(ValueError, match="--observe-last-action: procedural options"):
-        parse("ppo", ["--env", "Fleet-12x12-v0", "--observe-last-action", "True", "--out", str(tmp_path / "d")])
+    with pytest.raises(ValueError, match="--observe-last-action: fleet or procedural options"):
+        parse("ppo", ["--env", "Warehouse-8x8-v0", "--observe-last-action", "True", "--out", str(tmp_path / "d")])
+    fleet = parse("ppo", ["--env", "Fleet-12x12-v0", "--observe-last-action", "True", "--out", str(tmp_path / "g")])
+    assert fleet.env.overrides()["observe_last_action"] is True
+    with pytest.raises(ValueError, match="--observe-map: procedural options"):
+        parse("ppo", ["--env", "Fleet-12x12-v0", "--observe-map", "True", "--out", str(tmp_path / "h")])
+    mapped = parse("ppo", ["--env", "Procedural-Warehouse-v0", "--observe-map", "True", "--out", str(tmp_path / "i")])
+    assert mapped.env.overrides()["observe_map"] is True
     with pytest.raises(ValueError, match="--visit-levels: procedural options"):
         parse("ppo", ["--env", "Fleet-12x12-v0", "--visit-levels", "3", "--out", str(tmp_path / "e")])
     with pytest.raises(ValueError, match="--observe-priority: fleet options"):

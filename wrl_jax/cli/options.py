@@ -47,6 +47,8 @@ class EnvOptions:
     """fleet environments: reward for a blocked move"""
     observe_priority: bool | None = None
     """fleet environments: a window channel of the robots with a lower index (they win a contested cell)"""
+    observe_headings: bool | None = None
+    """fleet environments: a window channel of the cells the other robots would enter by repeating their last action"""
     view_radius: int | None = None
     """fleet and procedural environments: radius V of each robot's egocentric window"""
     shaping: str | None = None
@@ -56,7 +58,10 @@ class EnvOptions:
     pool_refresh: int | None = None
     """procedural environments: pool slots renewed with fresh layouts before every update (0: never)"""
     observe_last_action: bool | None = None
-    """procedural environments: the previous action, one-hot, in the observation (a one-step memory)"""
+    """procedural and fleet environments: the previous action, one-hot, in the observation (a one-step memory;
+    the fleet adds whether it was blocked)"""
+    observe_map: bool | None = None
+    """procedural environments: the whole padded map (3 channels) in the observation, after the window"""
     observe_visited: bool | None = None
     """procedural environments: a window channel of the cells visited since the current target was set"""
     visit_levels: int | None = None
@@ -219,11 +224,13 @@ FAMILY_OPTIONS = {
     "num_robots": ("fleet",),
     "block_penalty": ("fleet",),
     "observe_priority": ("fleet",),
+    "observe_headings": ("fleet",),
     "view_radius": ("fleet", "procedural"),
     "shaping": ("fleet",),
     "pool_size": ("procedural",),
     "pool_refresh": ("procedural",),
-    "observe_last_action": ("procedural",),
+    "observe_last_action": ("procedural", "fleet"),
+    "observe_map": ("procedural",),
     "observe_visited": ("procedural",),
     "visit_levels": ("procedural",),
 }

@@ -45,11 +45,13 @@ from wrl_jax.core.observation import (
     coordinate_table,
     expand_observations,
     observation_size,
+    offset_masks,
     robot_observation_parts,
     robot_observations,
     window_masks,
     window_size,
 )
+from wrl_jax.core.grid import MOVES_WITH_WAIT
 from wrl_jax.core.random import random_words, split_key, threefry2x32, threefry_key_data  # noqa: F401 (re-exported)
 from wrl_jax.envs.fleet.types import FleetParams, FleetState, FleetTasks
 
@@ -57,6 +59,9 @@ NUM_ACTIONS = 5
 """0 up, 1 down, 2 left, 3 right, 4 wait."""
 
 WAIT = 4
+
+MEMORY_SIZE = NUM_ACTIONS + 1
+"""Values ``observe_last_action`` appends: the previous action one-hot, then whether it was blocked."""
 
 FLAGS = ("shelf_hit", "wall_bump", "robot_block", "picked_up", "delivered", "waited")
 """Per-robot bool ``(K,)`` entries of a transition's ``info`` (``waited``: action 4, for the metrics)."""
@@ -276,24 +281,27 @@ def fleet_reset(tasks: FleetTasks, params: FleetParams) -> FleetState:
                       carrying=jnp.zeros(params.starts.shape[0], dtype=bool), time=jnp.zeros((), jnp.int32))
 
 
-def fleet_observation(state: FleetState, params: FleetParams, view_radius: int, priority: bool = False) -> jax.Array:
+def fleet_observation(state: FleetState, params: FleetParams, view_radius: int, priority: bool = False,
+                      headings: bool = False) -> jax.Array:
     """``(K, 5 + 3 (2V+1)^2)`` float32 observations (FLEET_SPEC.md), through :mod:`wrl_jax.core.observation`.
 
     For ``V <= 2`` from bit masks (:func:`observation_parts`), the same bits as
     :func:`~wrl_jax.core.observation.robot_observations`, several times cheaper under ``vmap``.
     ``priority`` (``V <= 2``) appends a fourth window channel, ``(K, 5 + 4 (2V+1)^2)``: the other
-    robots with a lower index than the observer (:attr:`Fleet.observe_priority`).
+    robots with a lower index than the observer (:attr:`Fleet.observe_priority`); ``headings`` (``V <= 2``,
+    needs ``state.last_action``) one more: the cells the other robots would enter by repeating their
+    previous action (:func:`heading_masks`).
     """
     if not bit_windows_supported(view_radius):
         target = _target_cells(params)[_target_index(state, params)]
         return robot_observations(params.shelves, state.pos, target, state.carrying, view_radius)
-    return expand_observations(*observation_parts(state, params, view_radius, priority), view_radius)
+    return expand_observations(*observation_parts(state, params, view_radius, priority, headings), view_radius)
 
 
 def observation_parts(state: FleetState, params: FleetParams, view_radius: int,
-                      priority: bool = False) -> tuple[jax.Array, jax.Array]:
-    """The observations' compact form ``(scalars (K, 5), masks (K, 3 or 4))`` (``V <= 2``; see
-    ``robot_observation_parts``).
+                      priority: bool = False, headings: bool = False) -> tuple[jax.Array, jax.Array]:
+    """The observations' compact form ``(scalars (K, 5), masks (K, 3 to 5))`` (``V <= 2``; see
+    ``robot_observation_parts``; ``headings`` appends :func:`heading_masks`).
 
     The shelf masks come from a table of the layout (:func:`~wrl_jax.core.observation.window_masks`),
     one gather per robot; with params shared by a batch the table is built once per step.
@@ -301,7 +309,26 @@ def observation_parts(state: FleetState, params: FleetParams, view_radius: int,
     size = params.shelves.shape[0]
     target = _target_cells(params)[_target_index(state, params)]
     masks = window_masks(params.shelves, view_radius).reshape(-1)[state.pos[:, 0] * size + state.pos[:, 1]]
-    return robot_observation_parts(masks, state.pos, target, state.carrying, view_radius, size, priority)
+    scalars, masks = robot_observation_parts(masks, state.pos, target, state.carrying, view_radius, size, priority)
+    if headings:
+        masks = jnp.concatenate([masks, heading_masks(state.pos, state.last_action, view_radius)[:, None]], axis=1)
+    return scalars, masks
+
+
+def heading_masks(pos: jax.Array, last_action: jax.Array, view_radius: int) -> jax.Array:
+    """``(K,)`` int32 window masks: bit ``w`` of robot ``i`` set on the cell another robot's previous
+    action aimed at (the cell it would try again by repeating it, whether or not it got there; its own
+    cell if that action was a wait, and at the start of a shift).
+
+    Why: a robot's window shows where the others *are*, not where they go; two robots that step
+    into one free cell, or into each other, are both blocked or one of them is (FLEET_SPEC.md step 3).
+    In aisles robots mostly keep going, so the repeated move is a cheap guess of the next cell.
+    """
+    moves = jnp.asarray(MOVES_WITH_WAIT)[jnp.where(last_action < 0, WAIT, last_action)]
+    ahead = pos + moves
+    others = ~np.eye(pos.shape[0], dtype=bool)
+    seen = jnp.where(others, offset_masks(ahead[None, :, :] - pos[:, None, :], view_radius), 0)  # [i, j]
+    return jax.lax.reduce(seen, np.int32(0), jax.lax.bitwise_or, (1,))
 
 
 def global_state(state: FleetState, params: FleetParams) -> jax.Array:
@@ -360,16 +387,35 @@ class Fleet(Environment[FleetState, FleetParams]):
     *lower index* stands. The conflict rule lets the lowest index win a free cell that
     several robots enter, and a shared policy cannot otherwise tell which of two robots
     facing one cell will win it: with this channel it can learn to yield.
+
+    ``observe_last_action=True`` (an option beyond FLEET_SPEC.md, off by default) appends six
+    values after everything else: the robot's own previous action one-hot (five zeros at the
+    start of a shift; an action outside ``0..4`` counts as the wait it acts as) and 1.0 if that
+    action was a blocked move (``robot_block``). A one-step memory: without it two robots that
+    meet head-on in an aisle see the same window step after step and a deterministic policy
+    repeats the refused swap forever; the state keeps it in ``last_action`` and ``last_blocked``.
+
+    ``observe_headings=True`` (beyond FLEET_SPEC.md, off by default, ``V <= 2``) adds a window channel
+    after the others: the cells the *other* robots would enter by repeating their previous action
+    (:func:`heading_masks`), a guess of where they go next, so a robot can see a contested cell or a
+    head-on meeting coming. The state keeps the previous actions for it (as with the last action).
     """
 
     family = "fleet"
 
-    def __init__(self, params: FleetParams, view_radius: int = 2, name: str = "Fleet", observe_priority: bool = False):
+    def __init__(self, params: FleetParams, view_radius: int = 2, name: str = "Fleet", observe_priority: bool = False,
+                 observe_last_action: bool = False, observe_headings: bool = False):
         self.size = int(params.shelves.shape[0])
         self.num_robots = int(params.starts.shape[0])
         self.num_agents = self.num_robots
         self.view_radius = int(view_radius)
         self.observe_priority = bool(observe_priority)
+        self.observe_last_action = bool(observe_last_action)
+        self.observe_headings = bool(observe_headings)
+        self.keeps_memory = self.observe_last_action or self.observe_headings
+        if self.observe_headings and not bit_windows_supported(self.view_radius):
+            raise ValueError(f"observe_headings needs the bit-mask window (view_radius <= 2), got view_radius="
+                             f"{self.view_radius}")
         if self.observe_priority and not bit_windows_supported(self.view_radius):
             raise ValueError(f"observe_priority needs the bit-mask window (view_radius <= 2), got view_radius="
                              f"{self.view_radius}")
@@ -377,7 +423,8 @@ class Fleet(Environment[FleetState, FleetParams]):
         super().__init__(params)
 
     def static_config(self) -> tuple:
-        return (self._name, self.size, self.num_robots, self.view_radius, self.observe_priority)
+        return (self._name, self.size, self.num_robots, self.view_radius, self.observe_priority,
+                self.observe_last_action, self.observe_headings)
 
     @property
     def name(self) -> str:
@@ -389,8 +436,11 @@ class Fleet(Environment[FleetState, FleetParams]):
 
     @property
     def obs_size(self) -> int:
-        """FLEET_SPEC.md's ``5 + 3 (2V+1)^2``, plus ``(2V+1)^2`` with the priority channel."""
-        return observation_size(self.view_radius) + (window_size(self.view_radius) ** 2 if self.observe_priority else 0)
+        """FLEET_SPEC.md's ``5 + 3 (2V+1)^2``, plus ``(2V+1)^2`` for each of the priority and heading channels,
+        plus 6 with the last action."""
+        extra_channels = int(self.observe_priority) + int(self.observe_headings)
+        memory = MEMORY_SIZE if self.observe_last_action else 0
+        return observation_size(self.view_radius) + extra_channels * window_size(self.view_radius) ** 2 + memory
 
     def onehot_coordinates(self) -> tuple[int, int, int, int]:
         """Four coordinates (own row and col, target row and col), each ``i / (N - 1)``: ``N`` values."""
@@ -398,17 +448,20 @@ class Fleet(Environment[FleetState, FleetParams]):
 
     def __repr__(self) -> str:
         return (f"Fleet({self._name!r}, size={self.size}, num_robots={self.num_robots}, view_radius={self.view_radius}"
-                f"{', observe_priority=True' if self.observe_priority else ''})")
+                f"{', observe_priority=True' if self.observe_priority else ''}"
+                f"{', observe_last_action=True' if self.observe_last_action else ''}"
+                f"{', observe_headings=True' if self.observe_headings else ''})")
 
     # ---------------------------------------------------------- gymnax hooks
     def reset_env(self, key: jax.Array, params: FleetParams) -> tuple[jax.Array, FleetState]:
-        state = fleet_reset(draw_tasks(key, params, self.num_robots), params)
+        state = self._start_memory(fleet_reset(draw_tasks(key, params, self.num_robots), params))
         return self._observe(state, params), state
 
     def transition(self, key: jax.Array, state: FleetState, action: Any, params: FleetParams):
         self.check_action(action)
         tasks = draw_tasks(key, params, self.num_robots)
         next_state, reward, truncated, flags = fleet_transition(state, action, tasks, params)
+        next_state = self._remember(next_state, action, flags)
         obs = self._observe(next_state, params)
         info = {**flags, "final_global_state": global_state(next_state, params)}
         return obs, next_state, reward, jnp.zeros((), dtype=bool), truncated, info
@@ -424,8 +477,10 @@ class Fleet(Environment[FleetState, FleetParams]):
         self.check_action(action)
         tasks = draw_tasks(split_key(key, 0), params, self.num_robots)
         reached, reward, truncated, flags = fleet_transition(state, action, tasks, params)
+        reached = self._remember(reached, action, flags)
         compact = bit_windows_supported(self.view_radius)
-        observe = partial(observation_parts if compact else fleet_observation, priority=self.observe_priority)
+        observe = partial(observation_parts if compact else fleet_observation, priority=self.observe_priority,
+                          headings=self.observe_headings)
         final_parts = observe(reached, params, self.view_radius)
         if compact:  # materialize the 32 bytes a robot: else XLA recomputes masks for each of the 80 columns
             final_parts = jax.lax.optimization_barrier(final_parts)
@@ -435,7 +490,7 @@ class Fleet(Environment[FleetState, FleetParams]):
 
         def reset(data):
             key_reset = split_key(jax.random.wrap_key_data(data, impl=impl) if typed else data, 1)
-            fresh = fleet_reset(draw_tasks(key_reset, params, self.num_robots), params)
+            fresh = self._start_memory(fleet_reset(draw_tasks(key_reset, params, self.num_robots), params))
             return fresh, observe(fresh, params, self.view_radius)
 
         data = jax.random.key_data(key) if typed else key
@@ -445,6 +500,7 @@ class Fleet(Environment[FleetState, FleetParams]):
             obs = expand_observations(*parts, self.view_radius)
         else:
             final_obs, obs = final_parts, parts
+        final_obs, obs = self._with_memory(final_obs, reached), self._with_memory(obs, next_state)
         info = {**flags, "final_global_state": global_state(reached, params), "final_obs": final_obs,
                 "final_observation": final_obs}
         return obs, next_state, reward, jnp.zeros((), dtype=bool), truncated, info
@@ -453,7 +509,32 @@ class Fleet(Environment[FleetState, FleetParams]):
         return self._observe(state, self.default_params if params is None else params)
 
     def _observe(self, state: FleetState, params: FleetParams) -> jax.Array:
-        return fleet_observation(state, params, self.view_radius, self.observe_priority)
+        observation = fleet_observation(state, params, self.view_radius, self.observe_priority, self.observe_headings)
+        return self._with_memory(observation, state)
+
+    # ---------------------------------------------------------- the one-step memory (observe_last_action)
+    def _start_memory(self, state: FleetState) -> FleetState:
+        """``state`` at the start of a shift: no previous action (``-1``), nothing blocked."""
+        if not self.keeps_memory:
+            return state
+        return state.replace(last_action=jnp.full(self.num_robots, -1, dtype=jnp.int32),
+                             last_blocked=jnp.zeros(self.num_robots, dtype=bool))
+
+    def _remember(self, state: FleetState, action: jax.Array, flags: dict[str, jax.Array]) -> FleetState:
+        """``state`` reached by ``action``, keeping the action (as acted: outside ``0..4`` a wait) and its block."""
+        if not self.keeps_memory:
+            return state
+        action = jnp.asarray(action, dtype=jnp.int32)
+        acted = jnp.where((action >= 0) & (action < NUM_ACTIONS), action, WAIT)
+        return state.replace(last_action=acted, last_blocked=flags["robot_block"])
+
+    def _with_memory(self, obs: jax.Array, state: FleetState) -> jax.Array:
+        """``obs (K, D)`` followed by the previous action one-hot and its block flag (with ``observe_last_action``)."""
+        if not self.observe_last_action:
+            return obs
+        memory = jnp.concatenate([jax.nn.one_hot(state.last_action, NUM_ACTIONS, dtype=jnp.float32),
+                                  state.last_blocked.astype(jnp.float32)[:, None]], axis=1)
+        return jnp.concatenate([obs, memory], axis=1)
 
     def global_state(self, state: FleetState, params: FleetParams | None = None) -> jax.Array:
         """See :func:`global_state`."""
@@ -498,4 +579,6 @@ class Fleet(Environment[FleetState, FleetParams]):
             "station": spaces.Box(0, int(self.default_params.num_stations) - 1, (k,), jnp.int32),
             "carrying": spaces.Box(0, 1, (k,), jnp.bool_),
             "time": spaces.Discrete(int(self.default_params.max_steps) + 1),
+            **({"last_action": spaces.Box(-1, NUM_ACTIONS - 1, (k,), jnp.int32),
+                "last_blocked": spaces.Box(0, 1, (k,), jnp.bool_)} if self.keeps_memory else {}),
         })

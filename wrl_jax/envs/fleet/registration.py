@@ -52,7 +52,7 @@ def make_params(layout: FleetLayout, num_robots: int, *, max_steps: int, shaping
     unknown = sorted(set(rewards) - set(REWARD_DEFAULTS))
     if unknown:
         raise ValueError(f"unknown fleet override(s) {unknown}; known: num_robots, max_steps, view_radius, "
-                         f"observe_priority, shaping, name, max_items, max_stations, {', '.join(REWARD_DEFAULTS)}")
+                         f"observe_priority, observe_last_action, observe_headings, shaping, name, max_items, max_stations, {', '.join(REWARD_DEFAULTS)}")
     constants = {**REWARD_DEFAULTS, **rewards}
     for key, value in constants.items():
         if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or not np.isfinite(value):
@@ -94,11 +94,14 @@ def _padded(cells: np.ndarray, rows: int | None, name: str) -> np.ndarray:
 
 
 def make_fleet(layout: FleetLayout | str, num_robots: int = 4, *, max_steps: int = 256, view_radius: int = 2,
-               name: str = "Fleet", observe_priority: bool = False, **overrides) -> tuple[Fleet, FleetParams]:
+               name: str = "Fleet", observe_priority: bool = False, observe_last_action: bool = False,
+               observe_headings: bool = False, **overrides) -> tuple[Fleet, FleetParams]:
     """``(env, params)`` for any layout (a :class:`FleetLayout` or an ASCII map) with enough ``S`` cells.
 
     ``observe_priority``: a fourth window channel of the other robots with a lower index
-    (:attr:`Fleet.observe_priority`). Overrides: ``shaping`` (``"bfs"`` or ``"manhattan"``),
+    (:attr:`Fleet.observe_priority`); ``observe_last_action``: each robot's previous action one-hot and
+    whether it was blocked, after the rest; ``observe_headings``: a window channel of the cells the other
+    robots would enter by repeating their previous action (both: :class:`Fleet`). Overrides: ``shaping`` (``"bfs"`` or ``"manhattan"``),
     ``max_items`` and ``max_stations`` (padding, see :func:`make_params`) and the reward
     constants of :data:`REWARD_DEFAULTS`.
 
@@ -112,7 +115,9 @@ def make_fleet(layout: FleetLayout | str, num_robots: int = 4, *, max_steps: int
     if isinstance(view_radius, bool) or not isinstance(view_radius, (int, np.integer)) or view_radius < 0:
         raise ValueError(f"view_radius must be a non-negative integer, got {view_radius!r}")
     params = make_params(layout, num_robots, max_steps=max_steps, **overrides)
-    return Fleet(params, view_radius=view_radius, name=name, observe_priority=observe_priority), params
+    env = Fleet(params, view_radius=view_radius, name=name, observe_priority=observe_priority,
+                observe_last_action=observe_last_action, observe_headings=observe_headings)
+    return env, params
 
 
 def make_named(map_name: str, num_robots: int = 4, **overrides) -> tuple[Fleet, FleetParams]:

@@ -26,6 +26,10 @@ class FleetState:
         station: ``(K,)`` int32 index into ``params.stations`` of each robot's delivery station.
         carrying: ``(K,)`` bool, True between a robot's pickup and its delivery.
         time: ``()`` int32 transitions taken in this shift (shared by the fleet).
+        last_action: ``(K,)`` int32 each robot's previous action (``-1`` at the start of a shift), kept
+            only by a fleet that observes it (``Fleet.observe_last_action``); ``None`` otherwise.
+        last_blocked: ``(K,)`` bool whether that action was a blocked move (``robot_block``); ``None``
+            like ``last_action``.
     """
 
     pos: jax.Array
@@ -33,6 +37,8 @@ class FleetState:
     station: jax.Array
     carrying: jax.Array
     time: jax.Array
+    last_action: jax.Array | None = None
+    last_blocked: jax.Array | None = None
 
 
 @struct.dataclass
