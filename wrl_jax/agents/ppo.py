@@ -704,7 +704,7 @@ FLEET = dataclasses.replace(
 )
 """IPPO for ``Fleet-12x12-v0`` (the default there, with the block penalty of :data:`FLEET_ENV_DEFAULTS`);
 docs/fleet_training.md has what it reaches against PIBT (with the observation of :data:`FLEET_ENV_DEFAULTS`,
-4 of 4 seeds above it at K = 4 and at K = 8, 3 min 16 s and 6 min 42 s on the 2-core CPU of 2026-12-02).
+4 of 4 seeds above it at K = 4 and at K = 8, 3 min 10 s and 6 min 32 s on the 2-core CPU of 2026-12-02).
 The first version (4 epochs, 1,000 updates) reached the same throughput in 12 min 53 s."""
 
 FLEET_ENV_DEFAULTS = {"block_penalty": -10.0, "observe_last_action": True, "observe_headings": True}

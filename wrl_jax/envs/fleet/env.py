@@ -40,6 +40,7 @@ import numpy as np
 from gymnax.environments import spaces
 
 from wrl_jax.core.environment import Environment
+from wrl_jax.core.grid import MOVES_WITH_WAIT
 from wrl_jax.core.observation import (
     bit_windows_supported,
     coordinate_table,
@@ -51,7 +52,6 @@ from wrl_jax.core.observation import (
     window_masks,
     window_size,
 )
-from wrl_jax.core.grid import MOVES_WITH_WAIT
 from wrl_jax.core.random import random_words, split_key, threefry2x32, threefry_key_data  # noqa: F401 (re-exported)
 from wrl_jax.envs.fleet.types import FleetParams, FleetState, FleetTasks
 
