@@ -126,6 +126,18 @@ def offset_masks(delta: jax.Array, view_radius: int) -> jax.Array:
     return jnp.where(inside, jnp.left_shift(jnp.int32(1), index), 0)
 
 
+def others_window_bits(pos: jax.Array, cells: jax.Array, view_radius: int) -> jax.Array:
+    """``(K, K)`` int32: ``[i, j]`` is the window bit (:func:`offset_masks`) of robot ``j``'s cell ``cells[j]``
+    in robot ``i``'s window around ``pos[i]``; 0 on the diagonal (a robot does not see itself)."""
+    others = ~np.eye(pos.shape[0], dtype=bool)
+    return jnp.where(others, offset_masks(cells[None, :, :] - pos[:, None, :], view_radius), 0)
+
+
+def or_masks(bits: jax.Array) -> jax.Array:
+    """``(K, K)`` int32 window bits -> ``(K,)`` int32 masks, OR over the second axis."""
+    return jax.lax.reduce(bits, np.int32(0), jax.lax.bitwise_or, (1,))
+
+
 def robot_observation_parts(
     shelf_masks: jax.Array,
     pos: jax.Array,
@@ -158,14 +170,13 @@ def robot_observation_parts(
     num_robots = pos.shape[0]
     table = jnp.asarray(coordinate_table(size))
     scalars = jnp.concatenate([table[pos], table[target], carrying.astype(jnp.float32)[:, None]], axis=1)
-    others = ~np.eye(num_robots, dtype=bool)
-    seen = jnp.where(others, offset_masks(pos[None, :, :] - pos[:, None, :], radius), 0)  # [i, j]: j seen by i
-    robot_masks = jax.lax.reduce(seen, np.int32(0), jax.lax.bitwise_or, (1,))
+    seen = others_window_bits(pos, pos, radius)  # [i, j]: j seen by i
+    robot_masks = or_masks(seen)
     target_masks = offset_masks(target - pos, radius)
     channels = [shelf_masks, robot_masks, target_masks]
     if priority:
         lower = np.tri(num_robots, k=-1, dtype=bool)  # [i, j]: j < i
-        channels.append(jax.lax.reduce(jnp.where(lower, seen, 0), np.int32(0), jax.lax.bitwise_or, (1,)))
+        channels.append(or_masks(jnp.where(lower, seen, 0)))
     return scalars, jnp.stack(channels, axis=1)
 
 

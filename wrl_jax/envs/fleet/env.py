@@ -46,7 +46,8 @@ from wrl_jax.core.observation import (
     coordinate_table,
     expand_observations,
     observation_size,
-    offset_masks,
+    or_masks,
+    others_window_bits,
     robot_observation_parts,
     robot_observations,
     window_masks,
@@ -324,11 +325,8 @@ def heading_masks(pos: jax.Array, last_action: jax.Array, view_radius: int) -> j
     into one free cell, or into each other, are both blocked or one of them is (FLEET_SPEC.md step 3).
     In aisles robots mostly keep going, so the repeated move is a cheap guess of the next cell.
     """
-    moves = jnp.asarray(MOVES_WITH_WAIT)[jnp.where(last_action < 0, WAIT, last_action)]
-    ahead = pos + moves
-    others = ~np.eye(pos.shape[0], dtype=bool)
-    seen = jnp.where(others, offset_masks(ahead[None, :, :] - pos[:, None, :], view_radius), 0)  # [i, j]
-    return jax.lax.reduce(seen, np.int32(0), jax.lax.bitwise_or, (1,))
+    ahead = pos + jnp.asarray(MOVES_WITH_WAIT)[jnp.where(last_action < 0, WAIT, last_action)]
+    return or_masks(others_window_bits(pos, ahead, view_radius))
 
 
 def global_state(state: FleetState, params: FleetParams) -> jax.Array:
