@@ -522,6 +522,47 @@ def test_bit_mask_observation_is_robot_observations_bit_for_bit(view_radius):
     assert sees_padding.sum() > (100 if view_radius else -1)
 
 
+def _numpy_free_runs(floor: np.ndarray, row: int, col: int) -> list[int]:
+    """Free cells from ``(row, col)`` up, down, left and right before a blocked cell or the grid's edge."""
+    runs = []
+    for d_row, d_col in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+        count, r, c = 0, row + d_row, col + d_col
+        while 0 <= r < floor.shape[0] and 0 <= c < floor.shape[1] and not floor[r, c]:
+            count, r, c = count + 1, r + d_row, c + d_col
+        runs.append(count)
+    return runs
+
+
+@pytest.mark.parametrize("view_radius", [0, 2, 3])
+def test_rays_are_the_free_runs_a_walk_would_find(view_radius):
+    """``observe_rays``: the last 4 values are the free cells up, down, left and right over ``N - 1``,
+    walked in NumPy on the floor (shelves, the floor's edge and the off-grid padding of small layouts stop
+    a run); the observation before them is the plain one, bit for bit; the reset table holds them too."""
+    env, params = make_procedural(pool_size=64, min_shape=(3, 3), max_shape=(12, 12), max_items=1,
+                                  view_radius=view_radius, observe_rays=True)
+    plain_env, plain_params = make_procedural(pool_size=64, min_shape=(3, 3), max_shape=(12, 12), max_items=1,
+                                              view_radius=view_radius)
+    assert env.obs_size == plain_env.obs_size + 4 and env.static_config() != plain_env.static_config()
+
+    def one(key):
+        key_reset, key_row, key_col = jax.random.split(key, 3)
+        reset_obs, state = env.reset(key_reset, params)
+        pos = jnp.stack([jax.random.randint(key_row, (), 0, state.height),
+                         jax.random.randint(key_col, (), 0, state.width)])
+        moved = state.replace(pos=pos)
+        return reset_obs, env.observe(state), env.observe(moved), plain_env.observe(moved), moved.pos, \
+            moved.layout_index
+
+    reset_obs, first_obs, obs, plain, pos, slot = (
+        np.asarray(x) for x in jax.jit(jax.vmap(one))(jax.random.split(jax.random.key(5), 500)))
+    np.testing.assert_array_equal(reset_obs, first_obs)
+    np.testing.assert_array_equal(obs[:, :-4].view(np.uint32), plain.view(np.uint32))
+    floors = np.asarray(params.pool.layouts.blocked)
+    expected = np.array([_numpy_free_runs(floors[s], r, c) for s, (r, c) in zip(slot, pos)], np.float32)
+    np.testing.assert_array_equal(obs[:, -4:], expected * np.float32(1 / 11))
+    assert expected.max() >= 5 and (expected == 0).any()  # long runs and runs stopped at once both occur
+
+
 def test_packed_wall_rows_agree_with_the_grid_and_the_fleet_masks():
     """``wall_rows`` round-trips (one word and two words a row), ``wall_bit`` reads it, and the row masks
     equal ``window_masks`` at every cell (the fleet's table), off-grid ring included."""

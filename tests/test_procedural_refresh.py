@@ -147,6 +147,10 @@ def test_bad_refresh_settings_fail_clearly(small, tmp_path):
         parse("ppo", ["--env", "Fleet-12x12-v0", "--observe-map", "True", "--out", str(tmp_path / "h")])
     mapped = parse("ppo", ["--env", "Procedural-Warehouse-v0", "--observe-map", "True", "--out", str(tmp_path / "i")])
     assert mapped.env.overrides()["observe_map"] is True
+    with pytest.raises(ValueError, match="--observe-rays: procedural options"):
+        parse("ppo", ["--env", "Fleet-12x12-v0", "--observe-rays", "True", "--out", str(tmp_path / "j")])
+    rays = parse("ppo", ["--env", "Procedural-Warehouse-v0", "--observe-rays", "True", "--out", str(tmp_path / "k")])
+    assert build(rays.spec, rays.config, rays.env).env.observe_rays
     with pytest.raises(ValueError, match="--visit-levels: procedural options"):
         parse("ppo", ["--env", "Fleet-12x12-v0", "--visit-levels", "3", "--out", str(tmp_path / "e")])
     with pytest.raises(ValueError, match="--observe-priority: fleet options"):

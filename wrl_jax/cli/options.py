@@ -66,6 +66,8 @@ class EnvOptions:
     """procedural environments: a window channel of the cells visited since the current target was set"""
     visit_levels: int | None = None
     """procedural environments: the visited channel counts visits up to this many (1: visited or not)"""
+    observe_rays: bool | None = None
+    """procedural environments: the free runs from the robot up, down, left and right (a range sensor)"""
 
     def overrides(self) -> dict[str, Any]:
         """Keyword overrides for ``wrl_jax.make``: only what differs from the registered environment."""
@@ -233,6 +235,7 @@ FAMILY_OPTIONS = {
     "observe_map": ("procedural",),
     "observe_visited": ("procedural",),
     "visit_levels": ("procedural",),
+    "observe_rays": ("procedural",),
 }
 """Environment flags that only some families take (refused on the others before anything is built)."""
 

@@ -329,3 +329,31 @@ def row_window_observation(window: jax.Array, pos: jax.Array, target: jax.Array,
     target_cell = (pos[0] + offsets[:, None] == target[0]) & (pos[1] + offsets[None, :] == target[1])
     robots = jnp.zeros(side * side, jnp.float32)
     return jnp.concatenate([scalars, shelves, robots, target_cell.astype(jnp.float32).reshape(-1)])
+
+
+RAY_DIRECTIONS = 4
+"""Free runs a robot measures: up, down, left, right (the order of the moves)."""
+
+
+def free_runs(rows: jax.Array, pos: jax.Array, view_radius: int, floor_width: int) -> jax.Array:
+    """``(4,)`` int32: free cells in a straight line from ``pos`` up, down, left and right, read from :func:`wall_rows`.
+
+    What a range sensor on the robot measures: the run stops at the first shelf or off-grid cell
+    (the walled ring, or the grid's edge when ``V = 0``). ``floor_width``: ``W`` of the rows'
+    floor (their words hold ``W + 2V`` cells and zeros after). Any number of words per row.
+    """
+    radius = int(view_radius)
+    walled_row, walled_col = pos[0] + radius, pos[1] + radius
+    bit_index = np.arange(WORD_BITS, dtype=np.uint32)
+    row_bits = ((rows[walled_row][:, None] >> bit_index[None, :]) & 1).reshape(-1) > 0  # (32 words,) cells
+    col_bits = ((rows[:, walled_col // WORD_BITS] >> (walled_col % WORD_BITS).astype(jnp.uint32)) & 1) > 0
+    length = rows.shape[0]
+    width = int(floor_width) + 2 * radius
+    along_col, along_row = np.arange(length), np.arange(width)
+    above = jnp.max(jnp.where(col_bits & (along_col < walled_row), along_col, -1))
+    below = jnp.min(jnp.where(col_bits & (along_col > walled_row), along_col, length))
+    row_bits = row_bits[:width]
+    left = jnp.max(jnp.where(row_bits & (along_row < walled_col), along_row, -1))
+    right = jnp.min(jnp.where(row_bits & (along_row > walled_col), along_row, width))
+    return jnp.stack([walled_row - above - 1, below - walled_row - 1,
+                      walled_col - left - 1, right - walled_col - 1]).astype(jnp.int32)

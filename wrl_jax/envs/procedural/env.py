@@ -54,8 +54,10 @@ from gymnax.environments import spaces
 
 from wrl_jax.core.environment import Environment
 from wrl_jax.core.observation import (
+    RAY_DIRECTIONS,
     coordinate_table,
     expand_observations,
+    free_runs,
     observation_size,
     pack_window_rows,
     plane_window_rows,
@@ -178,6 +180,9 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
             (padded width at most ``32 - 2V``).
         visit_levels: with ``observe_visited``, count visits to each cell up to this many
             (the channel's value ``min(count, L) / L``); 1 marks a cell stood on or not.
+        observe_rays: append the free runs from the robot's cell up, down, left and right
+            (:func:`~wrl_jax.core.observation.free_runs`, divided by ``N - 1``): a range sensor,
+            4 values after the trail (and before the map, if observed).
     """
 
     num_actions = NUM_ACTIONS
@@ -186,7 +191,7 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
     def __init__(self, default_params: ProceduralParams | None = None, *, generator: GeneratorConfig,
                  pool_size: int, view_radius: int = 2, observe_map: bool = False, observe_window: bool = True,
                  pool_seed: int | None = None, pool_refresh: int = 0, observe_last_action: bool = False,
-                 observe_visited: bool = False, visit_levels: int = 1):
+                 observe_visited: bool = False, visit_levels: int = 1, observe_rays: bool = False):
         if not 1 <= int(pool_size) <= MAX_POOL_SIZE:
             raise ValueError(f"pool_size must be in 1..{MAX_POOL_SIZE}, got {pool_size}")
         if not 0 <= int(pool_refresh) <= int(pool_size):
@@ -205,6 +210,7 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         self.observe_last_action = bool(observe_last_action)
         self.observe_visited = bool(observe_visited)
         self.visit_levels = int(visit_levels)
+        self.observe_rays = bool(observe_rays)
         if not 1 <= self.visit_levels <= MAX_VISIT_LEVELS:
             raise ValueError(f"visit_levels must be in 1..{MAX_VISIT_LEVELS}, got {visit_levels}")
         if self.visit_levels > 1 and not self.observe_visited:
@@ -229,14 +235,15 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
 
     def static_config(self) -> tuple:
         return (self.generator, self.pool_size, self.view_radius, self.observe_map, self.observe_window,
-                self.pool_seed, self.pool_refresh, self.observe_last_action, self.observe_visited, self.visit_levels)
+                self.pool_seed, self.pool_refresh, self.observe_last_action, self.observe_visited, self.visit_levels,
+                self.observe_rays)
 
     def __repr__(self) -> str:
         return (f"ProceduralWarehouse(max_shape={self.max_shape}, pool_size={self.pool_size}, "
                 f"view_radius={self.view_radius}, observe_map={self.observe_map}, "
                 f"observe_window={self.observe_window}, pool_refresh={self.pool_refresh}, "
                 f"observe_last_action={self.observe_last_action}, observe_visited={self.observe_visited}, "
-                f"visit_levels={self.visit_levels}, "
+                f"visit_levels={self.visit_levels}, observe_rays={self.observe_rays}, "
                 f"family={self.generator.family!r})")
 
     def check_params(self, params: ProceduralParams) -> None:
@@ -264,6 +271,7 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         extra = 3 * self.max_shape[0] * self.max_shape[1] if self.observe_map else 0
         extra += NUM_ACTIONS if self.observe_last_action else 0
         extra += window_size(self.view_radius) ** 2 if self.observe_visited else 0
+        extra += RAY_DIRECTIONS if self.observe_rays else 0
         return (observation_size(self.view_radius) if self.observe_window else 5) + extra
 
     def observation_space(self, params: ProceduralParams | None = None) -> spaces.Box:
@@ -358,7 +366,8 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
 
         After the robot observation: the previous action one-hot (``observe_last_action``),
         the visited cells of the window (``observe_visited``, row-major like the window's
-        channels), then the full map (``observe_map``).
+        channels), the free runs up, down, left and right (``observe_rays``), then the full
+        map (``observe_map``).
 
         The map's channels: 0 shelves and off-grid, 1 the robot itself (the
         window has it at its centre; a full map must say where), 2 the target.
@@ -390,6 +399,9 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
             obs = jnp.concatenate([obs, jax.nn.one_hot(state.last_action, NUM_ACTIONS, dtype=jnp.float32)])
         if self.observe_visited:  # (it needs the packed-row window: checked in __init__)
             obs = jnp.concatenate([obs, self.trail_window(trail)])
+        if self.observe_rays:  # free runs in cells, over N - 1 like the coordinates (a float32 product, not a division)
+            runs = free_runs(state.walls, state.pos, self.view_radius, self.max_shape[1])
+            obs = jnp.concatenate([obs, runs.astype(jnp.float32) * np.float32(1 / max(size - 1, 1))])
         if not self.observe_map:
             return obs
         rows = jnp.arange(self.max_shape[0])[:, None]
