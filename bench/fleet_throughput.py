@@ -12,11 +12,14 @@ same load on a shared machine), on ``Fleet-12x12-v0`` (FLEET_SPEC.md):
   with its task draw; no observation, no reset), to show what the observation costs;
 * ``jax pibt``: the same full step with PIBT actions
   (:func:`wrl_jax.envs.fleet.planners.plan`) and the priorities carried and
-  reset on truncation;
+  reset on truncation, compiled with the planners' XLA options
+  (:func:`wrl_jax.envs.fleet.planners.compiler_options`: the classic CPU fusion
+  emitter, faster for PIBT; the random-action cases keep XLA's defaults, which are
+  faster for them);
 * ``numpy reference``: :class:`wrl_jax.envs.fleet.reference.FleetReference`,
   one env in a Python loop, random actions, and with NumPy PIBT actions;
 * planner alone: the jitted, vmapped JAX PIBT on a batch of recorded fleet
-  states against the NumPy PIBT of ``tests/test_fleet_planners.py`` (the
+  states (with the planners' XLA options, and again with XLA's defaults) against the NumPy PIBT of ``tests/test_fleet_planners.py`` (the
   recursive one the tests check the JAX PIBT against, move for move) on the same states;
 * POGEMA (``pogema`` 1.4.0, lifelong mode ``on_target="restart"``) on the same
   12x12 map (shelves as obstacles; POGEMA places robots and targets itself),
@@ -121,7 +124,11 @@ class JaxCase:
         prio = jax.vmap(lambda _: planners.pibt_init(num_robots))(jnp.arange(batch))
         self.carry = (state, prio, run_key, jnp.float32(0.0))
         start = time.perf_counter()
-        self.fn = jax.jit(jax_program(env, batch, horizon, mode)).lower(self.params, self.carry).compile()
+        # PIBT's program with the planners' XLA options (the classic CPU fusion emitter: faster with PIBT,
+        # slower for the random step, which keeps XLA's defaults).
+        self.options = planners.compiler_options() if mode == "pibt" else {}
+        program = jax.jit(jax_program(env, batch, horizon, mode), compiler_options=self.options)
+        self.fn = program.lower(self.params, self.carry).compile()
         self.compile_s = time.perf_counter() - start
         self.carry = jax.block_until_ready(self.fn(self.params, self.carry))  # warm-up
         self.times_s: list[float] = []
@@ -140,6 +147,7 @@ class JaxCase:
         median = statistics.median(self.times_s)
         return {"impl": f"jax {self.mode}", "num_robots": self.num_robots, "batch": self.batch,
                 "horizon": self.horizon, "compile_s": self.compile_s, "times_s": self.times_s,
+                "compiler_options": self.options,
                 "robot_steps_per_s": robot_steps / median, "checksum": float(self.carry[3])}
 
 
@@ -186,21 +194,27 @@ class ReferenceCase:
 
 
 class PlannerCase:
-    """PIBT alone on recorded fleet states: JAX vmapped over ``batch`` states, or the NumPy one state at a time."""
+    """PIBT alone on recorded fleet states: JAX vmapped over ``batch`` states, or the NumPy one state at a time.
+
+    ``impl``: ``"jax"`` (compiled with :func:`planners.compiler_options`, as the library compiles its
+    planner programs), ``"jax, xla defaults"`` (the same program with XLA's own options), ``"numpy"``.
+    """
 
     def __init__(self, num_robots: int, batch: int, impl: str, states: dict, tests_module):
         self.num_robots, self.batch, self.impl = num_robots, batch, impl
+        self.options = planners.compiler_options() if impl == "jax" else {}
         _, self.params = make(ENV, num_robots=num_robots)
         self.states = {name: jax.tree.map(lambda x: x[:batch], value) for name, value in states.items()}
         self.times_s: list[float] = []
         self.compile_s = 0.0
-        if impl == "jax":
+        if impl.startswith("jax"):
             state = jax.tree.map(jnp.asarray, self.states["state"])
             prio = jax.tree.map(jnp.asarray, self.states["prio"])
             self.args = (prio, state, self.params)
             batched = jax.vmap(planners.plan, in_axes=(None, 0, 0, None))
             start = time.perf_counter()
-            self.fn = jax.jit(lambda p, s, params: batched("pibt", p, s, params)).lower(*self.args).compile()
+            program = jax.jit(lambda p, s, params: batched("pibt", p, s, params), compiler_options=self.options)
+            self.fn = program.lower(*self.args).compile()
             self.compile_s = time.perf_counter() - start
             self.fn(*self.args).block_until_ready()
         else:
@@ -210,7 +224,7 @@ class PlannerCase:
 
     def time_once(self) -> None:
         start = time.perf_counter()
-        if self.impl == "jax":
+        if self.impl.startswith("jax"):
             self.fn(*self.args).block_until_ready()
         else:
             s, prio = self.states["state"], self.states["prio"]
@@ -224,7 +238,7 @@ class PlannerCase:
 
     def summary(self) -> dict:
         return {"impl": f"{self.impl} pibt planner", "num_robots": self.num_robots, "batch": self.batch,
-                "compile_s": self.compile_s, "times_s": self.times_s,
+                "compile_s": self.compile_s, "times_s": self.times_s, "compiler_options": self.options,
                 "robot_decisions_per_s": self.batch * self.num_robots / statistics.median(self.times_s)}
 
 
@@ -325,6 +339,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"compiled {cases[-1].label}: {cases[-1].compile_s:.1f} s", flush=True)
         states = recorded_states(k, args.planner_batch, args.seed)
         cases.append(PlannerCase(k, args.planner_batch, "jax", states, tests_module))
+        cases.append(PlannerCase(k, args.planner_batch, "jax, xla defaults", states, tests_module))
         cases.append(PlannerCase(k, args.numpy_planner_states, "numpy", states, tests_module))
         for mode in ("random", "pibt"):
             cases.append(ReferenceCase(k, args.reference_steps, mode, args.seed, tests_module))
@@ -372,6 +387,8 @@ def ratios(rows: list[dict]) -> dict:
             "jax_random_vs_numpy_reference_random": rate("jax random") / rate("numpy reference random"),
             "jax_pibt_vs_numpy_reference_pibt": rate("jax pibt") / rate("numpy reference pibt"),
             "jax_pibt_planner_vs_numpy_pibt_planner": rate("jax pibt planner") / rate("numpy pibt planner"),
+            "jax_pibt_planner_xla_defaults_vs_numpy_pibt_planner":
+                rate("jax, xla defaults pibt planner") / rate("numpy pibt planner"),
             "jax_core_vs_jax_random": rate("jax core") / rate("jax random"),
         }
         pogema = [r for (i, _), r in of.items() if i.startswith("pogema") and "robot_steps_per_s" in r]

@@ -6,7 +6,9 @@ states recorded from PIBT shifts (the planner-alone states of ``bench/fleet_thro
 * the ``lax.while_loop``'s iterations per state (mean, percentiles, max): under ``vmap`` every
   state of a batch runs as many iterations as the slowest one, so their spread is what vmap costs;
 * the time of the candidate distances and preference lists (the work before the loop) against
-  the whole planner, median of ``--repeats`` calls after a warm-up, compile time apart.
+  the whole planner, median of ``--repeats`` calls after a warm-up, compile time apart, compiled with
+  the planners' XLA options (``planners.compiler_options()``), and the whole planner again with XLA's
+  default options.
 
 Run from the repository root::
 
@@ -76,16 +78,20 @@ def profile(num_robots: int, batch: int, repeats: int) -> dict:
         lists = planners.preference_lists(planners.candidate_ids(s.pos, size), planners.fleet_candidate_distances(s, params))
         return sum(jnp.sum(x) for x in lists) + jnp.sum(planners.pibt_priorities(p))
 
-    whole = jax.jit(jax.vmap(lambda p, s: planners.plan("pibt", p, s, params)))
-    before = jax.jit(jax.vmap(before_loop))
+    options = planners.compiler_options()  # as the library compiles its planner programs
+    whole = jax.jit(jax.vmap(lambda p, s: planners.plan("pibt", p, s, params)), compiler_options=options)
+    whole_defaults = jax.jit(jax.vmap(lambda p, s: planners.plan("pibt", p, s, params)))
+    before = jax.jit(jax.vmap(before_loop), compiler_options=options)
     whole_s = _median_seconds(whole, (prio, state), repeats)
+    defaults_s = _median_seconds(whole_defaults, (prio, state), repeats)
     before_s = _median_seconds(before, (prio, state), repeats)
     return {
         "num_robots": num_robots, "batch": batch,
         "iterations_mean": float(iterations.mean()), "iterations_max": int(iterations.max()),
         "iterations_p50_p90_p99": [float(x) for x in np.percentile(iterations, [50, 90, 99])],
-        "planner_ms": whole_s * 1e3, "before_loop_ms": before_s * 1e3,
+        "compiler_options": options, "planner_ms": whole_s * 1e3, "before_loop_ms": before_s * 1e3,
         "robot_decisions_per_s": batch * num_robots / whole_s,
+        "planner_ms_xla_defaults": defaults_s * 1e3,
     }
 
 
@@ -100,7 +106,8 @@ def main(argv: list[str] | None = None) -> int:
     for row in rows:
         print(f"K={row['num_robots']} batch={row['batch']}: loop iterations mean {row['iterations_mean']:.2f}, "
               f"max {row['iterations_max']}; planner {row['planner_ms']:.2f} ms, before the loop "
-              f"{row['before_loop_ms']:.2f} ms; {row['robot_decisions_per_s'] / 1e6:.2f} M decisions/s")
+              f"{row['before_loop_ms']:.2f} ms; {row['robot_decisions_per_s'] / 1e6:.2f} M decisions/s "
+              f"(with XLA's default options {row['planner_ms_xla_defaults']:.2f} ms)")
     if args.json:
         args.json.write_text(json.dumps({"rows": rows, "command": " ".join(sys.argv)}, indent=2))
     return 0

@@ -241,6 +241,20 @@ def test_pibt_beats_greedy_at_eight_robots():
     assert per_step["pibt"].max() <= 8 / metrics.mean_round_trip(params) * 1.1  # the bound is (nearly) a bound
 
 
+def test_planner_programs_compile_with_the_classic_emitter_and_count_the_same():
+    """``run_episodes`` is compiled with ``planners.compiler_options()`` (on CPU the classic fusion emitter,
+    faster for PIBT's loop); XLA's default options give the same counts, bit for bit."""
+    assert planners.compiler_options() == {"xla_cpu_use_fusion_emitters": False}  # the suite runs on CPU
+    env, params = make("Fleet-12x12-v0", num_robots=8)
+    key = jax.random.key(11)
+    lowered = metrics.run_episodes.lower(env, params, "pibt", key, 3, 48)
+    mine = jax.device_get(metrics.run_episodes(env, params, "pibt", key, 3, 48))
+    defaults = jax.device_get(lowered.compile(compiler_options={"xla_cpu_use_fusion_emitters": True})(params, key))
+    assert mine["delivered"].sum() > 0
+    for name in metrics.COUNTED:
+        np.testing.assert_array_equal(mine[name], defaults[name], err_msg=name)
+
+
 # ---------------------------------------------------------------- priorities and rollout plumbing
 @functools.partial(jax.jit, compiler_options=FAST_COMPILE)
 def priority_cases():

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from wrl_jax.envs.fleet.planners import PibtState, check_planner, next_priorities, pibt_init, plan
+from wrl_jax.envs.fleet.planners import PibtState, check_planner, compiler_options, next_priorities, pibt_init, plan
 from wrl_jax.envs.fleet.types import FleetParams, FleetState
 
 COUNTED = ("delivered", "picked_up", "shelf_hit", "wall_bump", "robot_block", "waited")
@@ -156,10 +156,15 @@ def mean_round_trip_jax(params: FleetParams) -> jax.Array:
     return total / (params.num_items * params.num_stations).astype(jnp.float32)
 
 
-@functools.partial(jax.jit, static_argnames=("env", "planner", "num_episodes", "horizon"))
+@functools.partial(jax.jit, static_argnames=("env", "planner", "num_episodes", "horizon"),
+                   compiler_options=compiler_options())
 def run_episodes(env: Any, params: FleetParams, planner: str, key: jax.Array, num_episodes: int,
                  horizon: int) -> dict[str, jax.Array]:
-    """:func:`episode_counts` of ``num_episodes`` shifts, vmapped in one program: each count ``(E, K)`` int32."""
+    """:func:`episode_counts` of ``num_episodes`` shifts, vmapped in one program: each count ``(E, K)`` int32.
+
+    Compiled with the planners' :func:`~wrl_jax.envs.fleet.planners.compiler_options` (the classic CPU
+    fusion emitter: 1.15x faster with PIBT, the same counts).
+    """
     keys = jax.random.split(key, num_episodes)
     return jax.vmap(episode_counts, in_axes=(None, None, None, 0, None))(env, params, planner, keys, horizon)
 

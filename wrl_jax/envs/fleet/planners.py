@@ -59,6 +59,21 @@ WAIT = 4
 PLANNERS = ("greedy", "pibt")
 """The planner names :func:`plan` knows."""
 
+CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+"""XLA options for programs whose hot part is PIBT, on the CPU backend (:func:`compiler_options`).
+
+PIBT's ``lax.while_loop`` of small ``(K,)``-wide selects and gathers runs faster when XLA's CPU
+backend emits its fusions with the classic elemental emitter instead of the newer MLIR fusion
+emitters: 1.6-1.9x for PIBT alone on 4,096 recorded states at K = 8 (``bench/pibt_profile.py``), 1.3x
+for the vmapped fleet step with PIBT actions, 1.15x for :func:`wrl_jax.envs.fleet.metrics.run_episodes`,
+the same moves bit for bit (tested). The step with random actions goes the other way (2x slower with
+the classic emitter), so this is set per program, not for the process."""
+
+
+def compiler_options() -> dict[str, bool]:
+    """``jax.jit(..., compiler_options=...)`` for a program dominated by PIBT: :data:`CPU_COMPILER_OPTIONS` on CPU."""
+    return dict(CPU_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else {}
+
 
 # ------------------------------------------------------------------ candidates
 def candidate_cells(pos: jax.Array, size: int) -> tuple[jax.Array, jax.Array]:
