@@ -27,16 +27,19 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
-def _median_seconds(fn, args, repeats: int) -> float:
+def _median_seconds(fns, args, repeats: int) -> list[float]:
+    """Median seconds of each of ``fns`` on ``args``, timed interleaved (one call of each per round)."""
     import jax
 
-    jax.block_until_ready(fn(*args))
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
+    for fn in fns:
         jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+    times = [[] for _ in fns]
+    for _ in range(repeats):
+        for fn, mine in zip(fns, times):
+            start = time.perf_counter()
+            jax.block_until_ready(fn(*args))
+            mine.append(time.perf_counter() - start)
+    return [statistics.median(mine) for mine in times]
 
 
 def profile(num_robots: int, batch: int, repeats: int) -> dict:
@@ -82,9 +85,7 @@ def profile(num_robots: int, batch: int, repeats: int) -> dict:
     whole = jax.jit(jax.vmap(lambda p, s: planners.plan("pibt", p, s, params)), compiler_options=options)
     whole_defaults = jax.jit(jax.vmap(lambda p, s: planners.plan("pibt", p, s, params)))
     before = jax.jit(jax.vmap(before_loop), compiler_options=options)
-    whole_s = _median_seconds(whole, (prio, state), repeats)
-    defaults_s = _median_seconds(whole_defaults, (prio, state), repeats)
-    before_s = _median_seconds(before, (prio, state), repeats)
+    whole_s, defaults_s, before_s = _median_seconds([whole, whole_defaults, before], (prio, state), repeats)
     return {
         "num_robots": num_robots, "batch": batch,
         "iterations_mean": float(iterations.mean()), "iterations_max": int(iterations.max()),

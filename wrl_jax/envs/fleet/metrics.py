@@ -163,7 +163,7 @@ def run_episodes(env: Any, params: FleetParams, planner: str, key: jax.Array, nu
     """:func:`episode_counts` of ``num_episodes`` shifts, vmapped in one program: each count ``(E, K)`` int32.
 
     Compiled with the planners' :func:`~wrl_jax.envs.fleet.planners.compiler_options` (the classic CPU
-    fusion emitter: 1.15x faster with PIBT, the same counts).
+    fusion emitter: about 1.15x faster with PIBT, the same counts).
     """
     keys = jax.random.split(key, num_episodes)
     return jax.vmap(episode_counts, in_axes=(None, None, None, 0, None))(env, params, planner, keys, horizon)

@@ -64,9 +64,10 @@ CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
 PIBT's ``lax.while_loop`` of small ``(K,)``-wide selects and gathers runs faster when XLA's CPU
 backend emits its fusions with the classic elemental emitter instead of the newer MLIR fusion
-emitters: 1.6-1.9x for PIBT alone on 4,096 recorded states at K = 8 (``bench/pibt_profile.py``), 1.3x
-for the vmapped fleet step with PIBT actions, 1.15x for :func:`wrl_jax.envs.fleet.metrics.run_episodes`,
-the same moves bit for bit (tested). The step with random actions goes the other way (2x slower with
+emitters: PIBT alone on 4,096 recorded states 1.3x at K = 8 and 1.2x at K = 4 (``bench/pibt_profile.py``,
+timed interleaved; 1.3-1.35x at K = 8 in three runs of ``bench/fleet_throughput.py``), the vmapped
+fleet step with PIBT actions 1.3x, :func:`wrl_jax.envs.fleet.metrics.run_episodes` 1.15x; the same
+moves bit for bit (tested). The step with random actions goes the other way (2x slower with
 the classic emitter), so this is set per program, not for the process."""
 
 
