@@ -30,7 +30,6 @@ import argparse
 import json
 import sys
 import time
-from collections import deque
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +37,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
+
+from wrl_jax.envs.warehouse.layout import bfs_distances  # noqa: E402
 
 MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))
 """Up, down, left, right: the action order, which breaks ties."""
@@ -47,18 +48,8 @@ FAR = 1 << 20
 
 def bfs(passable: np.ndarray, source: tuple[int, int]) -> np.ndarray:
     """Steps from ``source`` to every cell over ``passable`` cells (4-neighbour), ``FAR`` where unreachable."""
-    height, width = passable.shape
-    dist = np.full((height, width), FAR, dtype=np.int64)
-    dist[source] = 0
-    queue = deque([source])
-    while queue:
-        row, col = queue.popleft()
-        for d_row, d_col in MOVES:
-            r, c = row + d_row, col + d_col
-            if 0 <= r < height and 0 <= c < width and passable[r, c] and dist[r, c] == FAR:
-                dist[r, c] = dist[row, col] + 1
-                queue.append((r, c))
-    return dist
+    dist = bfs_distances(~passable, tuple(int(x) for x in source)).astype(np.int64)
+    return np.where(dist < 0, FAR, dist)
 
 
 def explore(blocked: np.ndarray, start, item, goal, view_radius: int, memory: bool) -> int | None:

@@ -191,8 +191,8 @@ def validate(layout: Layout) -> None:
 
 
 def bfs_distances(shelves: np.ndarray, source: tuple[int, int]) -> np.ndarray:
-    """Shortest free-cell path length from ``source`` to every cell; -1 where unreachable."""
-    size = shelves.shape[0]
+    """Shortest free-cell path length from ``source`` to every cell; -1 where unreachable (any rectangular grid)."""
+    height, width = shelves.shape
     dist = np.full(shelves.shape, -1, dtype=np.int32)
     dist[source] = 0
     queue = deque([source])
@@ -200,7 +200,7 @@ def bfs_distances(shelves: np.ndarray, source: tuple[int, int]) -> np.ndarray:
         row, col = queue.popleft()
         for d_row, d_col in MOVES:
             nr, nc = row + d_row, col + d_col
-            if 0 <= nr < size and 0 <= nc < size and not shelves[nr, nc] and dist[nr, nc] < 0:
+            if 0 <= nr < height and 0 <= nc < width and not shelves[nr, nc] and dist[nr, nc] < 0:
                 dist[nr, nc] = dist[row, col] + 1
                 queue.append((nr, nc))
     return dist
