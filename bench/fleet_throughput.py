@@ -59,9 +59,39 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+DEFAULT_HOST_DEVICES = 8
+"""XLA CPU devices the bench splits the machine into (``--host-devices``) for its sharded cases."""
+
+
+def host_devices_from_argv(argv: list[str]) -> int:
+    """``--host-devices N`` of the command line, read before JAX starts; else :data:`DEFAULT_HOST_DEVICES`."""
+    for index, arg in enumerate(argv):
+        value = argv[index + 1] if arg == "--host-devices" and index + 1 < len(argv) else (
+            arg.split("=", 1)[1] if arg.startswith("--host-devices=") else None)
+        if value is not None and value.isdigit():
+            return int(value)
+    return DEFAULT_HOST_DEVICES
+
+
+def load_machine_module():
+    """wrl_jax/cli/machine.py by its path: importing it through the package would start JAX too early."""
+    spec = importlib.util.spec_from_file_location("_wrl_jax_machine", ROOT / "wrl_jax" / "cli" / "machine.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+if __name__ == "__main__":
+    # XLA reads XLA_FLAGS once, when JAX starts: split the CPU into --host-devices XLA devices now, so the
+    # sharded cases run beside the one-device ones (a one-device program uses the first device only).
+    os.environ["XLA_FLAGS"] = load_machine_module().xla_flags_with_host_devices(
+        os.environ.get("XLA_FLAGS", ""), host_devices_from_argv(sys.argv[1:]))
+
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from jax.sharding import Mesh, NamedSharding  # noqa: E402
+from jax.sharding import PartitionSpec as P  # noqa: E402
 
 from wrl_jax.core.observation import observation_size  # noqa: E402
 from wrl_jax.core.registry import make  # noqa: E402
@@ -115,27 +145,56 @@ def jax_program(env: Any, batch: int, horizon: int, mode: str) -> Callable:
     return run
 
 
+def over_devices(env: Any, batch: int, horizon: int, mode: str, devices: int) -> Callable:
+    """:func:`jax_program` with the batch split over the first ``devices`` XLA devices (``shard_map``).
+
+    Each device runs the one-device program on its ``batch / devices`` fleets with its own key; the
+    carry's key and checksum get a leading device axis. Nothing is communicated between devices.
+    """
+    mesh = Mesh(np.array(jax.devices()[:devices]), ("envs",))
+    local = jax_program(env, batch // devices, horizon, mode)
+
+    def per_device(params, state, prio, key, checksum):
+        state, prio, key, checksum = local(params, (state, prio, key[0], checksum[0]))
+        return state, prio, key[None], checksum[None]
+
+    sharded = jax.shard_map(per_device, mesh=mesh, in_specs=(P(), P("envs"), P("envs"), P("envs"), P("envs")),
+                            out_specs=P("envs"), check_vma=False)
+    return lambda params, carry: sharded(params, *carry)
+
+
 class JaxCase:
-    def __init__(self, num_robots: int, batch: int, horizon: int, mode: str, seed: int):
-        self.num_robots, self.batch, self.horizon, self.mode = num_robots, batch, horizon, mode
+    def __init__(self, num_robots: int, batch: int, horizon: int, mode: str, seed: int, devices: int = 1):
+        self.num_robots, self.batch, self.horizon, self.mode, self.devices = num_robots, batch, horizon, mode, devices
+        if batch % devices:
+            raise ValueError(f"batch {batch} does not split over {devices} devices")
         env, self.params = make(ENV, num_robots=num_robots)
         reset_key, run_key = jax.random.split(jax.random.key(seed))
         _, state = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))(jax.random.split(reset_key, batch), self.params)
         prio = jax.vmap(lambda _: planners.pibt_init(num_robots))(jnp.arange(batch))
         self.carry = (state, prio, run_key, jnp.float32(0.0))
+        if devices > 1:
+            mesh = Mesh(np.array(jax.devices()[:devices]), ("envs",))
+            self.carry = jax.device_put((state, prio, jax.random.split(run_key, devices), jnp.zeros(devices)),
+                                        NamedSharding(mesh, P("envs")))
         start = time.perf_counter()
         # PIBT's program with the planners' XLA options (the classic CPU fusion emitter: faster with PIBT,
         # slower for the random step, which keeps XLA's defaults).
         self.options = planners.compiler_options() if mode == "pibt" else {}
-        program = jax.jit(jax_program(env, batch, horizon, mode), compiler_options=self.options)
-        self.fn = program.lower(self.params, self.carry).compile()
+        program = jax_program(env, batch, horizon, mode) if devices == 1 else over_devices(
+            env, batch, horizon, mode, devices)
+        self.fn = jax.jit(program, compiler_options=self.options).lower(self.params, self.carry).compile()
         self.compile_s = time.perf_counter() - start
         self.carry = jax.block_until_ready(self.fn(self.params, self.carry))  # warm-up
         self.times_s: list[float] = []
 
     @property
+    def impl(self) -> str:
+        return f"jax {self.mode}" + (f", {self.devices} devices" if self.devices > 1 else "")
+
+    @property
     def label(self) -> str:
-        return f"jax {self.mode} K={self.num_robots} batch={self.batch}"
+        return f"{self.impl} K={self.num_robots} batch={self.batch}"
 
     def time_once(self) -> None:
         start = time.perf_counter()
@@ -145,10 +204,10 @@ class JaxCase:
     def summary(self) -> dict:
         robot_steps = self.batch * self.horizon * self.num_robots
         median = statistics.median(self.times_s)
-        return {"impl": f"jax {self.mode}", "num_robots": self.num_robots, "batch": self.batch,
+        return {"impl": self.impl, "num_robots": self.num_robots, "batch": self.batch, "devices": self.devices,
                 "horizon": self.horizon, "compile_s": self.compile_s, "times_s": self.times_s,
                 "compiler_options": self.options,
-                "robot_steps_per_s": robot_steps / median, "checksum": float(self.carry[3])}
+                "robot_steps_per_s": robot_steps / median, "checksum": float(jnp.sum(self.carry[3]))}
 
 
 # ------------------------------------------------------------------ NumPy cases
@@ -200,8 +259,9 @@ class PlannerCase:
     planner programs), ``"jax, xla defaults"`` (the same program with XLA's own options), ``"numpy"``.
     """
 
-    def __init__(self, num_robots: int, batch: int, impl: str, states: dict, tests_module):
-        self.num_robots, self.batch, self.impl = num_robots, batch, impl
+    def __init__(self, num_robots: int, batch: int, impl: str, states: dict, tests_module, devices: int = 1):
+        self.num_robots, self.batch, self.devices = num_robots, batch, devices
+        self.impl = impl + (f", {devices} devices" if devices > 1 else "")
         self.options = planners.compiler_options() if impl == "jax" else {}
         _, self.params = make(ENV, num_robots=num_robots)
         self.states = {name: jax.tree.map(lambda x: x[:batch], value) for name, value in states.items()}
@@ -212,8 +272,14 @@ class PlannerCase:
             prio = jax.tree.map(jnp.asarray, self.states["prio"])
             self.args = (prio, state, self.params)
             batched = jax.vmap(planners.plan, in_axes=(None, 0, 0, None))
+            plan = lambda p, s, params: batched("pibt", p, s, params)  # noqa: E731
+            if devices > 1:  # the states split over the first ``devices`` devices, as in :func:`over_devices`
+                mesh = Mesh(np.array(jax.devices()[:devices]), ("envs",))
+                self.args = jax.device_put(self.args[:2], NamedSharding(mesh, P("envs"))) + (self.params,)
+                plan = jax.shard_map(plan, mesh=mesh, in_specs=(P("envs"), P("envs"), P()), out_specs=P("envs"),
+                                     check_vma=False)
             start = time.perf_counter()
-            program = jax.jit(lambda p, s, params: batched("pibt", p, s, params), compiler_options=self.options)
+            program = jax.jit(plan, compiler_options=self.options)
             self.fn = program.lower(*self.args).compile()
             self.compile_s = time.perf_counter() - start
             self.fn(*self.args).block_until_ready()
@@ -225,7 +291,7 @@ class PlannerCase:
     def time_once(self) -> None:
         start = time.perf_counter()
         if self.impl.startswith("jax"):
-            self.fn(*self.args).block_until_ready()
+            jax.block_until_ready(self.fn(*self.args))
         else:
             s, prio = self.states["state"], self.states["prio"]
             k = self.num_robots
@@ -238,6 +304,7 @@ class PlannerCase:
 
     def summary(self) -> dict:
         return {"impl": f"{self.impl} pibt planner", "num_robots": self.num_robots, "batch": self.batch,
+                "devices": self.devices,
                 "compile_s": self.compile_s, "times_s": self.times_s, "compiler_options": self.options,
                 "robot_decisions_per_s": self.batch * self.num_robots / statistics.median(self.times_s)}
 
@@ -323,6 +390,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pogema-python", default=POGEMA_PYTHON)
     parser.add_argument("--pogema-steps", type=int, default=2000)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--host-devices", type=int, default=DEFAULT_HOST_DEVICES,
+                        help="XLA CPU devices (set before JAX starts) the sharded cases split their batch over; "
+                             "1: no sharded cases")
     parser.add_argument("--quick", action="store_true", help="smoke run: K=4, batches 1 and 256, 2 repeats")
     parser.add_argument("--out", type=Path, default=RESULTS / "fleet_throughput.json")
     args = parser.parse_args(argv)
@@ -330,6 +400,7 @@ def main(argv: list[str] | None = None) -> int:
         args.robots, args.batches, args.repeats, args.horizon = [4], [1, 256], 2, 16
         args.reference_steps, args.planner_batch, args.numpy_planner_states, args.pogema_steps = 50, 256, 100, 300
     tests_module = numpy_planners()
+    devices = min(args.host_devices, len(jax.devices()))
 
     cases: list[Any] = []
     for k in args.robots:
@@ -337,8 +408,14 @@ def main(argv: list[str] | None = None) -> int:
             for mode in ("random", "pibt") + (("core",) if batch == max(args.batches) else ()):
                 cases.append(JaxCase(k, batch, args.horizon, mode, args.seed))
                 print(f"compiled {cases[-1].label}: {cases[-1].compile_s:.1f} s", flush=True)
+        if devices > 1:  # the largest batch again, split over the host devices
+            for mode in ("random", "pibt"):
+                cases.append(JaxCase(k, max(args.batches), args.horizon, mode, args.seed, devices))
+                print(f"compiled {cases[-1].label}: {cases[-1].compile_s:.1f} s", flush=True)
         states = recorded_states(k, args.planner_batch, args.seed)
         cases.append(PlannerCase(k, args.planner_batch, "jax", states, tests_module))
+        if devices > 1:
+            cases.append(PlannerCase(k, args.planner_batch, "jax", states, tests_module, devices))
         cases.append(PlannerCase(k, args.planner_batch, "jax, xla defaults", states, tests_module))
         cases.append(PlannerCase(k, args.numpy_planner_states, "numpy", states, tests_module))
         for mode in ("random", "pibt"):
@@ -391,9 +468,21 @@ def ratios(rows: list[dict]) -> dict:
                 rate("jax, xla defaults pibt planner") / rate("numpy pibt planner"),
             "jax_core_vs_jax_random": rate("jax core") / rate("jax random"),
         }
+        # the sharded cases' impl without its ", D devices": "jax random", "jax pibt", "jax pibt planner"
+        sharded = {i.replace(f", {r['devices']} devices", ""): i for (i, _), r in of.items() if r.get("devices", 1) > 1}
+        if sharded:
+            entry["jax_random_sharded_vs_jax_random"] = rate(sharded["jax random"]) / rate("jax random")
+            entry["jax_pibt_sharded_vs_jax_pibt"] = rate(sharded["jax pibt"]) / rate("jax pibt")
+            entry["jax_pibt_planner_sharded_vs_jax_pibt_planner"] = (
+                rate(sharded["jax pibt planner"]) / rate("jax pibt planner"))
+            entry["jax_pibt_planner_sharded_vs_numpy_pibt_planner"] = (
+                rate(sharded["jax pibt planner"]) / rate("numpy pibt planner"))
         pogema = [r for (i, _), r in of.items() if i.startswith("pogema") and "robot_steps_per_s" in r]
         if pogema:
             entry["jax_random_vs_pogema_random"] = rate("jax random") / pogema[0]["robot_steps_per_s"]
+            if sharded:
+                entry["jax_random_sharded_vs_pogema_random"] = (
+                    rate(sharded["jax random"]) / pogema[0]["robot_steps_per_s"])
         out[f"K={k}"] = entry
     return out
 

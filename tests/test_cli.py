@@ -128,17 +128,25 @@ def test_train_ppo_script_help():
         assert flag in out.stdout
 
 
-@pytest.mark.parametrize("script, level, expected", [
-    ("train_ppo.py", "1", ["--xla_backend_optimization_level=1", "--xla_cpu_use_fusion_emitters=false"]),
-    ("train_dqn.py", "1", ["--xla_backend_optimization_level=1", "--xla_cpu_use_fusion_emitters=false"]),
-    ("train_ppo.py", "-1", []),
+@pytest.mark.parametrize("script, argv, expected", [
+    ("train_ppo.py", ["--xla-opt-level", "1"],
+     ["--xla_backend_optimization_level=1", "--xla_cpu_use_fusion_emitters=false"]),
+    ("train_dqn.py", ["--xla-opt-level", "1"],
+     ["--xla_backend_optimization_level=1", "--xla_cpu_use_fusion_emitters=false"]),
+    ("train_ppo.py", ["--xla-opt-level", "-1"], []),
+    ("train_ppo.py", ["--devices", "4"], ["--xla_backend_optimization_level=1",
+                                          "--xla_cpu_use_fusion_emitters=false",
+                                          "--xla_force_host_platform_device_count=4"]),
+    ("train_dqn.py", ["--devices=2", "--xla-opt-level=-1"], ["--xla_force_host_platform_device_count=2"]),
+    ("train_ppo.py", ["--devices", "0"], ["--xla_backend_optimization_level=1", "--xla_cpu_use_fusion_emitters=false"]),
 ])
-def test_the_scripts_set_xla_flags_before_jax_starts(script, level, expected):
+def test_the_scripts_set_xla_flags_before_jax_starts(script, argv, expected):
     """XLA reads XLA_FLAGS once, when JAX starts, and importing wrl_jax starts it: ``train_ppo.py`` must set the
-    command's settings first (until 2026-12-02 it set them after, so they never took effect)."""
+    command's settings first (until 2026-12-02 it set them after, so they never took effect). ``--devices N``
+    splits the CPU into N host devices there (``--devices 0``, all devices, adds nothing)."""
     probe = (
         "import os, runpy, sys\n"
-        f"sys.argv = ['{script}', '--xla-opt-level', '{level}', '--help']\n"
+        f"sys.argv = {[script, *argv, '--help']!r}\n"
         "class Watch:\n"  # prints XLA_FLAGS as they are when JAX's backend module is first imported
         "    def find_spec(self, name, *args):\n"
         "        if name == 'jax._src.xla_bridge':\n"  # seen: report and stop (the rest would only cost seconds)

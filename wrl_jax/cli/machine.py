@@ -33,6 +33,24 @@ def xla_flags_with_defaults(flags: str, level: int) -> str:
     return " ".join([flags.strip(), *added]).strip()
 
 
+HOST_DEVICES_FLAG = "--xla_force_host_platform_device_count"
+"""XLA's flag that splits the CPU into several XLA devices (each runs its own programs on its own thread)."""
+
+
+def xla_flags_with_host_devices(flags: str, count: int) -> str:
+    """``flags`` with the CPU split into ``count`` XLA devices, unless ``flags`` already says how many.
+
+    Why: on XLA's CPU backend one device runs a program's fused loops on one thread, so the
+    elementwise-heavy programs here (the fleet step, PPO updates of small networks) leave the
+    other cores mostly idle; with the batch split over several host devices each device's share
+    runs on its own thread (docs/scale.md, "Host devices", has the measured speed-ups). Only the CPU
+    platform reads this flag; a GPU's devices are unaffected. ``count`` of 1 or less adds nothing.
+    """
+    if count <= 1 or HOST_DEVICES_FLAG in flags:
+        return flags
+    return " ".join([flags.strip(), f"{HOST_DEVICES_FLAG}={int(count)}"]).strip()
+
+
 def apply_xla_opt_level(level: int) -> None:
     """Set XLA's CPU optimization level and :data:`COMPILE_TIME_FLAGS` where ``XLA_FLAGS`` does not set them.
 
@@ -41,30 +59,45 @@ def apply_xla_opt_level(level: int) -> None:
     os.environ["XLA_FLAGS"] = xla_flags_with_defaults(os.environ.get("XLA_FLAGS", ""), level)
 
 
-def opt_level_from_argv(argv: list[str]) -> int:
-    """The ``--xla-opt-level`` of a command line (``--xla-opt-level L`` or ``=L``), else the default."""
+def int_option_from_argv(argv: list[str], name: str, default: int) -> int:
+    """The integer option ``name`` of a command line (``name V`` or ``name=V``), else ``default``.
+
+    Read before the command's own parser runs (before JAX starts); a bad value gives ``default`` here
+    and the command's parser reports it.
+    """
     for index, arg in enumerate(argv):
-        if arg == "--xla-opt-level" and index + 1 < len(argv):
+        if arg == name and index + 1 < len(argv):
             value = argv[index + 1]
-        elif arg.startswith("--xla-opt-level="):
+        elif arg.startswith(f"{name}="):
             value = arg.split("=", 1)[1]
         else:
             continue
         try:
             return int(value)
         except ValueError:
-            return DEFAULT_XLA_OPT_LEVEL  # the command's own parser reports the bad value
-    return DEFAULT_XLA_OPT_LEVEL
+            return default
+    return default
+
+
+def opt_level_from_argv(argv: list[str]) -> int:
+    """The ``--xla-opt-level`` of a command line (``--xla-opt-level L`` or ``=L``), else the default."""
+    return int_option_from_argv(argv, "--xla-opt-level", DEFAULT_XLA_OPT_LEVEL)
 
 
 def apply_for_command(argv: list[str]) -> None:
     """The training scripts' first statement: the command line's XLA settings, before JAX starts.
+
+    ``--xla-opt-level`` (with :data:`COMPILE_TIME_FLAGS`) and, for ``--devices N`` with ``N > 1``, the CPU
+    split into ``N`` host devices (:func:`xla_flags_with_host_devices`; ``XLA_FLAGS`` naming its own count wins).
 
     Importing wrl_jax starts JAX (gymnax creates arrays at import), so the scripts call this before their
     first import; ``python -m wrl_jax.<command>`` imports the package before any of its code runs, so
     there only ``XLA_FLAGS`` itself is effective.
     """
     apply_xla_opt_level(opt_level_from_argv(argv))
+    # ``--devices N`` on a CPU: split it into N XLA devices, so that there are N to shard over.
+    os.environ["XLA_FLAGS"] = xla_flags_with_host_devices(os.environ.get("XLA_FLAGS", ""),
+                                                          int_option_from_argv(argv, "--devices", 1))
 
 
 def cpu_info() -> dict[str, Any]:
