@@ -63,16 +63,6 @@ DEFAULT_HOST_DEVICES = 8
 """XLA CPU devices the bench splits the machine into (``--host-devices``) for its sharded cases."""
 
 
-def host_devices_from_argv(argv: list[str]) -> int:
-    """``--host-devices N`` of the command line, read before JAX starts; else :data:`DEFAULT_HOST_DEVICES`."""
-    for index, arg in enumerate(argv):
-        value = argv[index + 1] if arg == "--host-devices" and index + 1 < len(argv) else (
-            arg.split("=", 1)[1] if arg.startswith("--host-devices=") else None)
-        if value is not None and value.isdigit():
-            return int(value)
-    return DEFAULT_HOST_DEVICES
-
-
 def load_machine_module():
     """wrl_jax/cli/machine.py by its path: importing it through the package would start JAX too early."""
     spec = importlib.util.spec_from_file_location("_wrl_jax_machine", ROOT / "wrl_jax" / "cli" / "machine.py")
@@ -84,8 +74,10 @@ def load_machine_module():
 if __name__ == "__main__":
     # XLA reads XLA_FLAGS once, when JAX starts: split the CPU into --host-devices XLA devices now, so the
     # sharded cases run beside the one-device ones (a one-device program uses the first device only).
-    os.environ["XLA_FLAGS"] = load_machine_module().xla_flags_with_host_devices(
-        os.environ.get("XLA_FLAGS", ""), host_devices_from_argv(sys.argv[1:]))
+    _machine = load_machine_module()
+    os.environ["XLA_FLAGS"] = _machine.xla_flags_with_host_devices(
+        os.environ.get("XLA_FLAGS", ""), _machine.int_option_from_argv(sys.argv[1:], "--host-devices",
+                                                                       DEFAULT_HOST_DEVICES))
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
