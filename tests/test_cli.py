@@ -178,3 +178,10 @@ def test_an_environment_may_bring_its_own_default_preset(tmp_path):
     assert chosen.run.preset == "default"
     with pytest.raises(ValueError, match="unknown environment"):
         cli.parse("ppo", ["--env", "Nowhere-v0", "--out", str(tmp_path / "d")])
+
+
+def test_shaping_flag_reaches_the_procedural_warehouse_and_is_refused_on_the_study_maps(tmp_path):
+    command = cli.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--shaping", "bfs", "--out", str(tmp_path / "a")])
+    assert command.env.overrides()["shaping"] == "bfs"
+    with pytest.raises(ValueError, match="--shaping: fleet or procedural options"):
+        cli.parse("ppo", ["--env", "Warehouse-8x8-v0", "--shaping", "bfs", "--out", str(tmp_path / "b")])

@@ -344,6 +344,61 @@ def test_dynamics_match_the_study_env_on_the_padded_12x12_map():
     assert np.asarray(a[5]).any() and np.asarray(a[4]).any()  # wall bumps at the padded edge, collisions
 
 
+def test_bfs_shaping_rewards_the_change_of_the_numpy_bfs_distance():
+    """``shaping="bfs"``: SPEC.md's reward with ``d`` the shortest path (NumPy BFS), same dynamics, float32 bits."""
+    env, params = make_procedural(seed=3, pool_size=6, shaping="bfs")
+    plain_env, plain_params = make_procedural(seed=3, pool_size=6)
+    slots, items = np.meshgrid(np.arange(6), np.arange(2), indexing="ij")
+    slots, items = slots.reshape(-1), items.reshape(-1)
+    # Toward the target by Manhattan on 70 % of the steps (so items get picked up and delivered), else random.
+    actions = jax.random.randint(jax.random.key(4), (slots.size, 120), 0, 4)
+    greedy = jax.random.bernoulli(jax.random.key(5), 0.7, actions.shape)
+
+    def toward(state):
+        delta = jnp.where(state.carrying, state.goal, state.item_pos) - state.pos
+        return jnp.where(delta[0] != 0, jnp.where(delta[0] > 0, 1, 0), jnp.where(delta[1] > 0, 3, 2))
+
+    def run(env, params):
+        def episode(slot, item, acts, coins):
+            def one(state, step):
+                action = jnp.where(step[1], toward(state), step[0])
+                _, next_state, reward, _, _, info = env.transition(None, state, action, params)
+                return next_state, (state.pos, next_state.pos, state.carrying, reward, info["collision"],
+                                    info["picked_up"], info["delivered"])
+            return jax.lax.scan(one, env.reset_to(slot, item, params)[1], (acts, coins))[1]
+        return jax.jit(jax.vmap(episode))(jnp.asarray(slots), jnp.asarray(items), actions, greedy)
+
+    pos, next_pos, carrying, reward, collision, picked_up, delivered = map(np.asarray, run(env, params))
+    plain = run(plain_env, plain_params)
+    np.testing.assert_array_equal(next_pos, np.asarray(plain[1]))  # the dynamics do not change
+    layouts = params.pool.layouts
+    differs = 0
+    for e, (slot, item) in enumerate(zip(slots, items)):
+        blocked = np.asarray(layouts.blocked[slot])
+        to_item = bfs_distances(blocked, tuple(np.asarray(layouts.items[slot, item])))
+        to_goal = bfs_distances(blocked, tuple(np.asarray(layouts.goal[slot])))
+        for t in range(actions.shape[1]):
+            table = to_goal if carrying[e, t] else to_item
+            change = int(table[tuple(pos[e, t])]) - int(table[tuple(next_pos[e, t])])
+            target = np.asarray(layouts.goal[slot] if carrying[e, t] else layouts.items[slot, item])
+            manhattan = int(np.abs(pos[e, t] - target).sum() - np.abs(next_pos[e, t] - target).sum())
+            differs += change != manhattan
+            expected = np.float32(0.0) if delivered[e, t] else np.float32(-0.5)
+            expected = expected + (np.float32(-10.0) if collision[e, t] else np.float32(0.0))
+            expected = expected + np.float32(0.0)
+            expected = expected + np.float32(2.0) * np.float32(change)
+            expected = expected + (np.float32(50.0) if picked_up[e, t] else np.float32(0.0))
+            expected = expected + (np.float32(200.0) if delivered[e, t] else np.float32(0.0))
+            assert reward[e, t] == expected, (e, t)
+    assert picked_up.any() and delivered.any() and carrying.any()
+    assert differs > 0  # shelves made the two distances disagree on some steps, so the test tells them apart
+    with pytest.raises(ValueError, match="shaping must be one of"):
+        make_procedural(pool_size=2, shaping="euclidean")
+    with pytest.raises(ValueError, match="pool_refresh"):
+        make_procedural(pool_size=4, pool_refresh=2, shaping="bfs")
+    assert params.distances.shape == (6, 9, 16, 16) and plain_params.distances.shape == (6, 0, 16, 16)
+
+
 def test_observation_is_the_fleet_robot_observation_with_off_grid_padding():
     floor = np.zeros((3, 4), dtype=bool)
     floor[1, 1] = True

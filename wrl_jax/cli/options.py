@@ -52,7 +52,7 @@ class EnvOptions:
     view_radius: int | None = None
     """fleet and procedural environments: radius V of each robot's egocentric window"""
     shaping: str | None = None
-    """fleet environments: distance of the shaping term, bfs or manhattan"""
+    """fleet and procedural environments: distance of the shaping term, bfs or manhattan"""
     pool_size: int | None = None
     """procedural environments: layouts in the pool episodes reset from"""
     pool_refresh: int | None = None
@@ -228,7 +228,7 @@ FAMILY_OPTIONS = {
     "observe_priority": ("fleet",),
     "observe_headings": ("fleet",),
     "view_radius": ("fleet", "procedural"),
-    "shaping": ("fleet",),
+    "shaping": ("fleet", "procedural"),
     "pool_size": ("procedural",),
     "pool_refresh": ("procedural",),
     "observe_last_action": ("procedural", "fleet"),

@@ -53,6 +53,7 @@ from flax import struct
 from gymnax.environments import spaces
 
 from wrl_jax.core.environment import Environment
+from wrl_jax.core.grid import distance_maps
 from wrl_jax.core.observation import (
     RAY_DIRECTIONS,
     coordinate_table,
@@ -88,6 +89,8 @@ from wrl_jax.envs.procedural.pool import (
 from wrl_jax.envs.warehouse.env import check_action, item_from_word, spec_reward
 
 NUM_ACTIONS = 4
+SHAPINGS = ("manhattan", "bfs")
+"""Distances the reward's shaping term can use (``shaping=``)."""
 MAX_POOL_SIZE = 2**16 - 1
 """Slot bound of the 32-bit slot draw (:func:`wrl_jax.env.item_from_word`)."""
 MAX_VISIT_LEVELS = 255
@@ -106,11 +109,16 @@ class ProceduralParams:
     - ``reset_obs`` ``(P, I, obs_size)``: the first observation of every (slot, item) episode
       (a second egocentric window per environment per step, for the reset branch of the
       auto-reset select, measured the largest cost of a step: docs/procedural.md).
+
+    With ``shaping="bfs"`` a third: ``distances`` ``(P, I + 1, H, W)`` int16, the BFS distance from
+    every cell to each item row and (last) to the goal (:meth:`ProceduralWarehouse.pool_distances`),
+    read by the reward's shaping term and never observed; ``(P, 0, H, W)`` (nothing) with Manhattan shaping.
     """
 
     pool: LayoutPool
     walls: jax.Array
     reset_obs: jax.Array
+    distances: jax.Array
     max_steps: jax.Array
     step_penalty: jax.Array
     obstacle_penalty: jax.Array
@@ -183,6 +191,12 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         observe_rays: append the free runs from the robot's cell up, down, left and right
             (:func:`~wrl_jax.core.observation.free_runs`, divided by ``N - 1``): a range sensor,
             4 values after the trail (and before the map, if observed).
+        shaping: the distance ``d`` of the reward's shaping term ``shaping_coef (d(pos) - d(pos'))``:
+            ``"manhattan"`` (SPEC.md's, the default) or ``"bfs"``, the shortest path on the episode's
+            floor (FLEET_SPEC.md's default). A training signal only: the BFS tables live in params
+            (``params.distances``) and nothing of them is observed, so a policy trained with them still
+            sees only its window. Not with ``pool_refresh`` (a refresh would swap the tables of a slot
+            under the episodes running on it).
     """
 
     num_actions = NUM_ACTIONS
@@ -191,7 +205,8 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
     def __init__(self, default_params: ProceduralParams | None = None, *, generator: GeneratorConfig,
                  pool_size: int, view_radius: int = 2, observe_map: bool = False, observe_window: bool = True,
                  pool_seed: int | None = None, pool_refresh: int = 0, observe_last_action: bool = False,
-                 observe_visited: bool = False, visit_levels: int = 1, observe_rays: bool = False):
+                 observe_visited: bool = False, visit_levels: int = 1, observe_rays: bool = False,
+                 shaping: str = "manhattan"):
         if not 1 <= int(pool_size) <= MAX_POOL_SIZE:
             raise ValueError(f"pool_size must be in 1..{MAX_POOL_SIZE}, got {pool_size}")
         if not 0 <= int(pool_refresh) <= int(pool_size):
@@ -200,6 +215,15 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
             raise ValueError("pool_refresh needs a generated pool (its seed): a pool of given layouts is not refreshed")
         if int(view_radius) < 0:
             raise ValueError(f"view_radius must be non-negative, got {view_radius}")
+        if shaping not in SHAPINGS:
+            raise ValueError(f"shaping must be one of {SHAPINGS}, got {shaping!r}")
+        if shaping == "bfs" and int(pool_refresh):
+            raise ValueError("shaping='bfs' reads each pool slot's distance tables, which pool_refresh would replace "
+                             "under the episodes running on the slot: use pool_refresh=0 (or Manhattan shaping)")
+        if shaping == "bfs" and generator.max_shape[0] * generator.max_shape[1] > np.iinfo(np.int16).max:
+            raise ValueError(f"shaping='bfs' keeps int16 distance tables: max_shape {generator.max_shape} has more "
+                             f"than {np.iinfo(np.int16).max} cells")
+        self.shaping = shaping
         self.generator = generator
         self.pool_size = int(pool_size)
         self.view_radius = int(view_radius)
@@ -236,14 +260,14 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
     def static_config(self) -> tuple:
         return (self.generator, self.pool_size, self.view_radius, self.observe_map, self.observe_window,
                 self.pool_seed, self.pool_refresh, self.observe_last_action, self.observe_visited, self.visit_levels,
-                self.observe_rays)
+                self.observe_rays, self.shaping)
 
     def __repr__(self) -> str:
         return (f"ProceduralWarehouse(max_shape={self.max_shape}, pool_size={self.pool_size}, "
                 f"view_radius={self.view_radius}, observe_map={self.observe_map}, "
                 f"observe_window={self.observe_window}, pool_refresh={self.pool_refresh}, "
                 f"observe_last_action={self.observe_last_action}, observe_visited={self.observe_visited}, "
-                f"visit_levels={self.visit_levels}, observe_rays={self.observe_rays}, "
+                f"visit_levels={self.visit_levels}, observe_rays={self.observe_rays}, shaping={self.shaping!r}, "
                 f"family={self.generator.family!r})")
 
     def check_params(self, params: ProceduralParams) -> None:
@@ -264,6 +288,11 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         if tuple(params.reset_obs.shape) != expected_obs:
             raise ValueError(f"params.reset_obs has shape {tuple(params.reset_obs.shape)}, expected {expected_obs} "
                              f"(build params with registration.make_params or env.with_pool)")
+        expected_distances = (self.pool_size, self.distance_rows, *self.max_shape)
+        if tuple(params.distances.shape) != expected_distances:
+            raise ValueError(f"params.distances has shape {tuple(params.distances.shape)}, expected "
+                             f"{expected_distances} for shaping={self.shaping!r} (build params with "
+                             f"registration.make_params or env.with_pool)")
 
     # ------------------------------------------------------------ spaces
     @property
@@ -338,8 +367,13 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         collision = on_floor & wall_bit(state.walls, clipped, self.view_radius)
         next_pos = jnp.where(collision, pos, clipped)
 
+        distance_change = None
+        if self.shaping == "bfs":  # the target's table: the item's row, or the goal's (the last row) while carrying
+            row = jnp.where(state.carrying, params.distances.shape[1] - 1, state.item_index)
+            table = params.distances[state.layout_index, row].astype(jnp.int32)
+            distance_change = table[pos[0], pos[1]] - table[next_pos[0], next_pos[1]]
         reward, picked_up, delivered = spec_reward(
-            params, pos, next_pos, state.carrying, state.item_pos, state.goal, collision, wall_bump
+            params, pos, next_pos, state.carrying, state.item_pos, state.goal, collision, wall_bump, distance_change
         )
 
         time = state.time + 1
@@ -463,10 +497,29 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
                          in_axes=(0, 0, None, None))(slots, items, pool, walls)
         return jax.vmap(jax.vmap(self.observe))(first)
 
+    @property
+    def distance_rows(self) -> int:
+        """Tables per layout in ``params.distances``: every item row and the goal with BFS shaping, else none."""
+        return self.generator.max_items + 1 if self.shaping == "bfs" else 0
+
+    def pool_distances(self, pool: LayoutPool) -> jax.Array:
+        """``(P, distance_rows, H, W)`` int16: BFS distances from every cell to each item row, then the goal.
+
+        Computed with the pool (a relaxation per target, :func:`wrl_jax.core.grid.distance_maps`),
+        so a step reads two entries instead of searching; cells the target cannot be reached from
+        (shelves, off-grid, closed pockets: never a robot's cell) hold int16's maximum.
+        """
+        layouts = pool.layouts
+        if self.shaping != "bfs":
+            return jnp.zeros((pool.size, 0, *self.max_shape), dtype=jnp.int16)
+        targets = jnp.concatenate([layouts.items, layouts.goal[:, None, :]], axis=1)
+        tables = jax.vmap(distance_maps)(layouts.blocked, targets)
+        return jnp.minimum(tables, np.iinfo(np.int16).max).astype(jnp.int16)
+
     def with_pool(self, params: ProceduralParams, pool: LayoutPool) -> ProceduralParams:
-        """``params`` serving ``pool`` (its walls and reset observations recomputed)."""
-        walls, reset_obs = pool_arrays(self, pool)
-        return params.replace(pool=pool, walls=walls, reset_obs=reset_obs)
+        """``params`` serving ``pool`` (its walls, reset observations and distance tables recomputed)."""
+        walls, reset_obs, distances = pool_arrays(self, pool)
+        return params.replace(pool=pool, walls=walls, reset_obs=reset_obs, distances=distances)
 
     def refresh_pool(self, key: jax.Array, params: ProceduralParams, count: int | None = None) -> ProceduralParams:
         """Params with the pool (or ``count`` slots of it) regenerated from ``key``; call between updates."""
@@ -498,7 +551,8 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
             return old.at[slots].set(new)
 
         return params.replace(pool=jax.tree.map(put, params.pool, fresh), walls=put(params.walls, walls),
-                              reset_obs=put(params.reset_obs, reset_obs))
+                              reset_obs=put(params.reset_obs, reset_obs),
+                              distances=put(params.distances, self.pool_distances(fresh)))
 
     def training_layout_hashes(self, params: ProceduralParams, updates: int | None) -> np.ndarray:
         """uint64 hashes of every layout training on ``params`` for ``updates`` updates could have drawn.
@@ -601,7 +655,7 @@ def count_visit(planes: jax.Array, cell: jax.Array, view_radius: int, levels: in
 
 
 @partial(jax.jit, static_argnums=0)
-def pool_arrays(env: ProceduralWarehouse, pool: LayoutPool) -> tuple[jax.Array, jax.Array]:
-    """``(walls, reset_obs)`` of ``pool`` for ``env``'s params (one compiled program per env and pool shape)."""
+def pool_arrays(env: ProceduralWarehouse, pool: LayoutPool) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``(walls, reset_obs, distances)`` of ``pool`` for ``env``'s params (one compiled program per env and pool shape)."""
     walls = env.pool_walls(pool)
-    return walls, env.reset_observations(pool, walls)
+    return walls, env.reset_observations(pool, walls), env.pool_distances(pool)

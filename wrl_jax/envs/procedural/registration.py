@@ -24,7 +24,7 @@ DEFAULT_MAX_STEPS = 300
 """Episode length (the study's 12x12 uses 300; a 16x16 route is at most a few dozen steps longer)."""
 
 ENV_OPTIONS = ("seed", "pool_size", "pool_refresh", "max_shape", "view_radius", "observe_map", "observe_window",
-               "observe_last_action", "observe_visited", "visit_levels", "observe_rays", "max_steps")
+               "observe_last_action", "observe_visited", "visit_levels", "observe_rays", "shaping", "max_steps")
 
 GENERATOR_FIELDS = ("family", "min_shape", "max_items", "min_items", "density", "gap_rate", "aisle", "shelf_mix",
                     "items_on_pick_faces", "min_reach", "max_attempts")
@@ -39,11 +39,12 @@ def make_params(env: ProceduralWarehouse, pool: LayoutPool, *, max_steps: int = 
     if int(max_steps) < 1:
         raise ValueError(f"max_steps must be a positive integer, got {max_steps}")
     values = {**REWARD_DEFAULTS, **rewards}
-    walls, reset_obs = pool_arrays(env, pool)
+    walls, reset_obs, distances = pool_arrays(env, pool)
     return ProceduralParams(
         pool=pool,
         walls=walls,
         reset_obs=reset_obs,
+        distances=distances,
         max_steps=jnp.asarray(int(max_steps), dtype=jnp.int32),
         **{name: jnp.asarray(value, dtype=jnp.float32) for name, value in values.items()},
     )
@@ -52,15 +53,16 @@ def make_params(env: ProceduralWarehouse, pool: LayoutPool, *, max_steps: int = 
 def make_procedural(*, seed: int = 0, pool_size: int = 1024, pool_refresh: int = 0,
                     max_shape: tuple[int, int] = (16, 16), view_radius: int = 2, observe_map: bool = False,
                     observe_window: bool = True, observe_last_action: bool = False, observe_visited: bool = False,
-                    visit_levels: int = 1, observe_rays: bool = False, max_steps: int = DEFAULT_MAX_STEPS,
-                    **overrides) -> tuple[ProceduralWarehouse, ProceduralParams]:
+                    visit_levels: int = 1, observe_rays: bool = False, shaping: str = "manhattan",
+                    max_steps: int = DEFAULT_MAX_STEPS, **overrides) -> tuple[ProceduralWarehouse, ProceduralParams]:
     """``(env, params)``: a pool of ``pool_size`` generated layouts, drawn from ``seed``.
 
     ``pool_refresh``: slots a learner renews before every update, from the same seed's
     training stream (:meth:`ProceduralWarehouse.params_for_update`; 0: a fixed pool).
     ``observe_last_action``: the previous action, one-hot, in the observation; ``observe_visited``:
     the window's cells visited since the current target was set (``visit_levels``: counted up to
-    that many visits); ``observe_rays``: the free runs from the robot up, down, left and right.
+    that many visits); ``observe_rays``: the free runs from the robot up, down, left and right;
+    ``shaping``: ``"manhattan"`` (SPEC.md) or ``"bfs"`` (the reward's shaping by shortest paths).
 
     Overrides: any :class:`GeneratorConfig` field (``family``, ``min_shape``,
     ``max_items``, ``density``, ...), ``max_steps`` and SPEC.md's reward constants.
@@ -81,7 +83,7 @@ def make_procedural(*, seed: int = 0, pool_size: int = 1024, pool_refresh: int =
                               observe_map=observe_map, observe_window=observe_window, pool_seed=int(seed),
                               pool_refresh=int(pool_refresh), observe_last_action=observe_last_action,
                               observe_visited=observe_visited, visit_levels=visit_levels,
-                              observe_rays=observe_rays)
+                              observe_rays=observe_rays, shaping=shaping)
     params = make_params(env, pool, max_steps=max_steps, **overrides)
     env.check_params(params)
     return env.with_default_params(params), params
@@ -90,7 +92,7 @@ def make_procedural(*, seed: int = 0, pool_size: int = 1024, pool_refresh: int =
 def make_from_layouts(layouts: Sequence[PaddedLayout], *, pool_size: int | None = None, view_radius: int = 2,
                       observe_map: bool = False, observe_window: bool = True, observe_last_action: bool = False,
                       observe_visited: bool = False, visit_levels: int = 1, observe_rays: bool = False,
-                      max_steps: int = DEFAULT_MAX_STEPS, generator: GeneratorConfig | None = None,
+                      shaping: str = "manhattan", max_steps: int = DEFAULT_MAX_STEPS, generator: GeneratorConfig | None = None,
                       **rewards: float) -> tuple[ProceduralWarehouse, ProceduralParams]:
     """``(env, params)`` over given layouts (all of one padded shape), cycled to ``pool_size`` slots.
 
@@ -106,7 +108,7 @@ def make_from_layouts(layouts: Sequence[PaddedLayout], *, pool_size: int | None 
     env = ProceduralWarehouse(generator=generator, pool_size=pool.size, view_radius=view_radius,
                               observe_map=observe_map, observe_window=observe_window,
                               observe_last_action=observe_last_action, observe_visited=observe_visited,
-                              visit_levels=visit_levels, observe_rays=observe_rays)
+                              visit_levels=visit_levels, observe_rays=observe_rays, shaping=shaping)
     params = make_params(env, pool, max_steps=max_steps, **rewards)
     env.check_params(params)
     return env.with_default_params(params), params

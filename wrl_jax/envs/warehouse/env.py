@@ -258,23 +258,26 @@ def spec_reward(
     goal: jax.Array,
     collision: jax.Array,
     wall_bump: jax.Array,
+    distance_change: jax.Array | None = None,
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """SPEC.md's pickup, delivery and float32 reward of one move: ``(reward, picked_up, delivered)``.
 
     Shared by every single-robot family (the study's maps, the procedural
     warehouses); ``params`` holds the six reward constants. Terms are added in
     SPEC.md's order, as the NumPy reference adds them, so the bits agree.
+    ``distance_change``: ``d(pos) - d(pos')`` int32 of another distance than SPEC.md's
+    Manhattan one (the procedural warehouse's BFS shaping); ``None``: Manhattan.
     """
     target = jnp.where(carrying, goal, item_pos)
-    distance_before = jnp.sum(jnp.abs(pos - target))
-    distance_after = jnp.sum(jnp.abs(next_pos - target))
+    if distance_change is None:
+        distance_change = jnp.sum(jnp.abs(pos - target)) - jnp.sum(jnp.abs(next_pos - target))
     picked_up = ~carrying & jnp.all(next_pos == item_pos)
     delivered = carrying & jnp.all(next_pos == goal)
     zero = jnp.float32(0.0)
     reward = jnp.where(delivered, zero, params.step_penalty)
     reward = reward + jnp.where(collision, params.obstacle_penalty, zero)
     reward = reward + jnp.where(wall_bump, params.wall_penalty, zero)
-    reward = reward + params.shaping_coef * (distance_before - distance_after).astype(jnp.float32)
+    reward = reward + params.shaping_coef * distance_change.astype(jnp.float32)
     reward = reward + jnp.where(picked_up, params.pickup_reward, zero)
     reward = reward + jnp.where(delivered, params.delivery_reward, zero)
     return reward, picked_up, delivered
