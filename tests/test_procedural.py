@@ -385,7 +385,7 @@ def test_bfs_shaping_rewards_the_change_of_the_numpy_bfs_distance():
             differs += change != manhattan
             expected = np.float32(0.0) if delivered[e, t] else np.float32(-0.5)
             expected = expected + (np.float32(-10.0) if collision[e, t] else np.float32(0.0))
-            expected = expected + np.float32(0.0)
+            expected = expected + np.float32(0.0)  # wall_penalty is 0: the term is added all the same, in order
             expected = expected + np.float32(2.0) * np.float32(change)
             expected = expected + (np.float32(50.0) if picked_up[e, t] else np.float32(0.0))
             expected = expected + (np.float32(200.0) if delivered[e, t] else np.float32(0.0))

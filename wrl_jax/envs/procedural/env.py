@@ -509,9 +509,9 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         so a step reads two entries instead of searching; cells the target cannot be reached from
         (shelves, off-grid, closed pockets: never a robot's cell) hold int16's maximum.
         """
-        layouts = pool.layouts
         if self.shaping != "bfs":
             return jnp.zeros((pool.size, 0, *self.max_shape), dtype=jnp.int16)
+        layouts = pool.layouts
         targets = jnp.concatenate([layouts.items, layouts.goal[:, None, :]], axis=1)
         tables = jax.vmap(distance_maps)(layouts.blocked, targets)
         return jnp.minimum(tables, np.iinfo(np.int16).max).astype(jnp.int16)
