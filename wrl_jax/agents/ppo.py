@@ -60,6 +60,7 @@ from wrl_jax.agents.common import (
     linear_decay,
     traced_fields,
 )
+from wrl_jax.agents import propagation
 from wrl_jax.agents.networks import ACTIVATIONS, mlp_forward_flops
 from wrl_jax.core.environment import Environment
 
@@ -92,6 +93,13 @@ class PPOConfig:
             critic sees each robot's own observation; ``"centralized"``: MAPPO,
             the critic sees the robot's observation and the environment's
             global state (``env.global_state``), the actor still only its own.
+        encoder: ``"mlp"``: the observation straight into the MLPs. ``"propagation"``:
+            environments whose observation holds a map (``env.map_observation()``,
+            e.g. ``Procedural-Warehouse-v0`` with ``observe_map=True``): each network
+            first propagates values from the target over the map with learned costs
+            (:mod:`wrl_jax.agents.propagation`) and its MLP sees the rest of the
+            observation and the values around the robot instead of the map.
+        propagation_rounds: rounds of that propagation (the longest path it sees, in moves).
 
     Traced (vmappable, :class:`PPOHyper`):
         learning_rate, gamma, gae_lambda, clip_eps, ent_coef, vf_coef, max_grad_norm, reward_scale.
@@ -110,6 +118,8 @@ class PPOConfig:
     normalize_advantages: bool = True
     bootstrap_truncated: bool = True
     critic: str = "local"
+    encoder: str = "mlp"
+    propagation_rounds: int = 48
     learning_rate: float = 0.01
     gamma: float = 0.95
     gae_lambda: float = 0.6
@@ -137,11 +147,18 @@ class PPOConfig:
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first problem; called before anything is compiled."""
-        positive = ("num_envs", "num_steps", "num_minibatches", "update_epochs", "total_timesteps")
+        positive = ("num_envs", "num_steps", "num_minibatches", "update_epochs", "total_timesteps",
+                    "propagation_rounds")
         check_positive_ints("PPO", self, positive)
         check_hidden_sizes("PPO", self.hidden_sizes)
         if self.obs_encoding not in OBS_ENCODINGS:
             raise ValueError(f"PPO obs_encoding must be one of {OBS_ENCODINGS}, got {self.obs_encoding!r}")
+        if self.encoder not in ENCODERS:
+            raise ValueError(f"PPO encoder must be one of {ENCODERS}, got {self.encoder!r}")
+        if self.encoder == "propagation" and self.obs_encoding != "raw":
+            raise ValueError("PPO encoder='propagation' needs obs_encoding='raw' (it reads the map from the raw values)")
+        if self.encoder == "propagation" and self.critic != "local":
+            raise ValueError("PPO encoder='propagation' is for single-robot environments: use critic='local'")
         if self.critic not in CRITICS:
             raise ValueError(f"PPO critic must be one of {CRITICS}, got {self.critic!r}")
         if self.activation not in ACTIVATIONS:
@@ -209,6 +226,7 @@ AGENT_EVENTS = {"delivered": "deliveries_sum", "robot_block": "robot_blocks_sum"
 
 
 OBS_ENCODINGS = ("raw", "onehot")
+ENCODERS = ("mlp", "propagation")
 CRITICS = ("local", "centralized")
 _ADAM_EPS = 1e-5  # as in Stable-Baselines3 and CleanRL
 
@@ -232,10 +250,16 @@ class PPO(Algorithm[PPORunner]):
         self.centralized = config.critic == "centralized"
         self.global_size = int(env.global_state_size()) if self.centralized else 0
         self.coordinates = onehot_coordinates(env, config.obs_encoding)
+        self.map_layout = None  # (offset, H, W) of the map the propagation encoder plans over
+        if config.encoder == "propagation":
+            layout = env.map_observation() if hasattr(env, "map_observation") else None
+            self.map_layout = propagation.check_map_layout(layout, env.name, agent_observation_size(env))
         # The runner keeps actor and critic parameters as one flat vector, so the
         # optimizer and the gradient clip are a few fused kernels instead of a
         # few per weight array: a third fewer kernels for XLA to compile.
         self.num_features = encoded_size(env, config.obs_encoding)
+        if self.map_layout is not None:  # the map is replaced by the values around the robot
+            self.num_features += propagation.NUM_FEATURES - 3 * self.map_layout[1] * self.map_layout[2]
         template = jax.eval_shape(self._init_networks, jax.random.PRNGKey(0))
         leaves, self._params_treedef = jax.tree_util.tree_flatten(template)
         self._param_shapes = [leaf.shape for leaf in leaves]
@@ -247,9 +271,27 @@ class PPO(Algorithm[PPORunner]):
         actor, critic = init_mlp_params(
             key, [(self.num_features, sizes, self.env.num_actions, 0.01), (critic_inputs, sizes, 1, 1.0)]
         )
+        if self.map_layout is not None:  # one propagation, the actor's, read by both
+            actor["propagation"] = propagation.init_propagation()
         return {"actor": actor, "critic": critic}
 
-    def forward(self, network: dict[str, Any], obs: jax.Array, global_state: jax.Array | None = None) -> jax.Array:
+    def network_inputs(self, actor: dict[str, Any], obs: jax.Array) -> jax.Array:
+        """What the MLPs read: ``obs`` itself, or with ``encoder="propagation"`` the observation
+        with its map replaced by the values around the robot, propagated with the actor's
+        learned costs (:func:`wrl_jax.agents.propagation.map_features`). The critic reads
+        the same: one propagation per observation, and the value loss teaches the costs too."""
+        if self.map_layout is None:
+            return obs
+        return propagation.map_features(actor["propagation"], obs, self.map_layout, self.config.propagation_rounds)
+
+    def forward(
+        self,
+        network: dict[str, Any],
+        obs: jax.Array,
+        global_state: jax.Array | None = None,
+        *,
+        inputs: jax.Array | None = None,
+    ) -> jax.Array:
         """One network (actor logits or critic value) on observations ``(..., obs_size)``.
 
         With ``obs_encoding="raw"`` this is exactly ``networks.MLP.apply``. With
@@ -260,7 +302,18 @@ class PPO(Algorithm[PPORunner]):
         ``global_state`` ``(..., G)`` (the centralized critic only) is the rest of
         the first layer's input, shared by the ``K`` agents of ``obs`` ``(..., K, obs_size)``:
         its product with the kernel is computed once per environment and broadcast.
+
+        ``inputs``: :meth:`network_inputs` of ``obs``, when the caller computed them
+        already (with ``encoder="propagation"`` the critic has no propagation of its own
+        and needs them). The actor then adds its learned multiple of the action features
+        to its logits: a policy that follows the propagated values from the start.
         """
+        if inputs is None:
+            if self.map_layout is not None and "propagation" not in network:
+                raise ValueError("with encoder='propagation' the critic reads the actor's propagation: "
+                                 "pass inputs=network_inputs(actor, obs)")
+            inputs = self.network_inputs(network, obs)
+        obs = inputs
         layers = [network["params"][f"Dense_{i}"] for i in range(len(network["params"]))]
         first = layers[0]
         kernel = first["kernel"] if global_state is None else first["kernel"][: self.num_features]
@@ -275,6 +328,8 @@ class PPO(Algorithm[PPORunner]):
             x = x + (global_state @ first["kernel"][self.num_features :])[..., None, :]
         for layer in layers[1:]:
             x = self.activation(x) @ layer["kernel"] + layer["bias"]
+        if self.map_layout is not None and "propagation" in network:
+            x = x + network["propagation"]["prior"] * obs[..., -propagation.NUM_FEATURES : -1]
         return x
 
     def flatten(self, networks: dict[str, Any]) -> jax.Array:
@@ -366,7 +421,8 @@ class PPO(Algorithm[PPORunner]):
         both_global = (
             jnp.concatenate([traj.global_state, traj.final_global_state], axis=0) if self.centralized else None
         )
-        both_values = self.forward(networks["critic"], both, both_global)[..., 0]
+        both_inputs = self.network_inputs(networks["actor"], both)
+        both_values = self.forward(networks["critic"], both, both_global, inputs=both_inputs)[..., 0]
         values, next_values = both_values[: cfg.num_steps], both_values[cfg.num_steps :]
 
         # 3. GAE, truncation bootstrapped, the trace cut at every episode end (a fleet's
@@ -440,7 +496,8 @@ class PPO(Algorithm[PPORunner]):
 
     def _loss(self, params: jax.Array, mb: dict[str, jax.Array], hyper: PPOHyper):
         networks = self.unflatten(params)
-        logits = self.forward(networks["actor"], mb["obs"])
+        inputs = self.network_inputs(networks["actor"], mb["obs"])  # computed once for both networks
+        logits = self.forward(networks["actor"], mb["obs"], inputs=inputs)
         log_probs = jax.nn.log_softmax(logits)
         log_prob = jnp.take_along_axis(log_probs, mb["action"][..., None], axis=-1)[..., 0]
         log_ratio = log_prob - mb["log_prob"]
@@ -451,7 +508,7 @@ class PPO(Algorithm[PPORunner]):
         clipped = jnp.clip(ratio, 1.0 - hyper.clip_eps, 1.0 + hyper.clip_eps)
         policy_loss = -jnp.minimum(ratio * advantage, clipped * advantage).mean()
         entropy = -(jnp.exp(log_probs) * log_probs).sum(-1).mean()
-        value = self.forward(networks["critic"], mb["obs"], mb.get("global_state"))[..., 0]
+        value = self.forward(networks["critic"], mb["obs"], mb.get("global_state"), inputs=inputs)[..., 0]
         value_loss = jnp.square(mb["return"] - value).mean()
         loss = policy_loss - hyper.ent_coef * entropy + hyper.vf_coef * value_loss
         stats = {
@@ -481,7 +538,14 @@ class PPO(Algorithm[PPORunner]):
         cfg = self.config
         # The one-hot first layer is a gather-sum, about the cost of a dense layer on the raw values.
         obs, hidden, actions = agent_observation_size(self.env), tuple(cfg.hidden_sizes), self.env.num_actions
-        actor, critic = mlp_forward_flops(obs, hidden, actions), mlp_forward_flops(obs, hidden, 1)
+        if self.map_layout is not None:  # the MLPs see the features, not the map; the actor's propagation
+            _, height, width = self.map_layout  # is counted with the actor, the critic shares it
+            obs = self.num_features
+            plan = propagation.propagation_forward_flops(height, width, cfg.propagation_rounds)
+        else:
+            plan = 0
+        actor = mlp_forward_flops(obs, hidden, actions) + plan
+        critic = mlp_forward_flops(obs, hidden, 1)
         # Network rows: one per agent; the centralized critic's global part once per environment step.
         n = cfg.steps_per_update * (self.num_agents or 1)
         if self.centralized:

@@ -303,6 +303,15 @@ class ProceduralWarehouse(Environment[ProceduralState, ProceduralParams]):
         extra += RAY_DIRECTIONS if self.observe_rays else 0
         return (observation_size(self.view_radius) if self.observe_window else 5) + extra
 
+    def map_observation(self) -> tuple[int, int, int] | None:
+        """``(offset, H, W)``: where the full map sits in the observation (3 channels of ``H x W``,
+        channel-major: blocked, the robot, the target), ``None`` without ``observe_map``. For networks
+        that read the map as a grid (PPO's ``encoder="propagation"``)."""
+        if not self.observe_map:
+            return None
+        height, width = self.max_shape
+        return self.obs_size - 3 * height * width, height, width
+
     def observation_space(self, params: ProceduralParams | None = None) -> spaces.Box:
         return spaces.Box(0.0, 1.0, (self.obs_size,), jnp.float32)
 

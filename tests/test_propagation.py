@@ -1,0 +1,184 @@
+"""PPO's ``encoder="propagation"`` (wrl_jax/agents/propagation.py): the learned distance field over the
+observed map, its hand-written gradient, how PPO wires it, its refusals, and that it learns.
+
+The propagation must be a shortest path when its costs say so (checked against a BFS written here over
+generated layouts), its custom backward pass must be the gradient (checked by finite differences), and
+training must make shelves dear by itself (the costs start equal everywhere).
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from wrl_jax import training
+from wrl_jax.agents import ppo, propagation
+from wrl_jax.core.registry import make
+
+
+def numpy_bfs(blocked: np.ndarray, source: tuple[int, int]) -> np.ndarray:
+    """Moves from every free cell to ``source`` (-1: unreachable), 4-connected."""
+    height, width = blocked.shape
+    distance = np.full((height, width), -1)
+    distance[source] = 0
+    queue = collections.deque([source])
+    while queue:
+        row, col = queue.popleft()
+        for d_row, d_col in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            r, c = row + d_row, col + d_col
+            if 0 <= r < height and 0 <= c < width and not blocked[r, c] and distance[r, c] < 0:
+                distance[r, c] = distance[row, col] + 1
+                queue.append((r, c))
+    return distance
+
+
+@pytest.fixture(scope="module")
+def map_env():
+    env, params = make("Procedural-Warehouse-v0", pool_size=64, seed=5, observe_map=True)
+    return env, params
+
+
+def map_grids(env, params, count: int):
+    obs, _ = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(jax.random.key(3), count), params)
+    offset, height, width = env.map_observation()
+    return obs, np.asarray(obs[:, offset:]).reshape(count, 3, height, width)
+
+
+def test_with_dear_shelves_the_values_are_minus_the_bfs_distance(map_env):
+    env, params = map_env
+    obs, grids = map_grids(env, params, 48)
+    dear_shelves = {"kernel": jnp.zeros((3, 3)).at[1, 1].set(60.0), "bias": jnp.asarray(np.log(np.e - 1.0))}
+    cost = propagation.cost_map(dear_shelves, jnp.asarray(grids[:, 0]))
+    values = np.asarray(propagation.propagate(cost, jnp.asarray(grids[:, 2]), 64))
+    checked = 0
+    for blocked, target, value in zip(grids[:, 0] > 0.5, grids[:, 2], values):
+        distance = numpy_bfs(blocked, tuple(int(v) for v in np.argwhere(target > 0.5)[0]))
+        reached = distance >= 0
+        np.testing.assert_allclose(-value[reached], distance[reached], atol=1e-3)
+        assert (value[~blocked & ~reached] == -propagation.BIG).all()
+        checked += int(reached.sum())
+    assert checked > 48 * 30
+
+
+def test_rounds_bound_the_path_length(map_env):
+    env, params = map_env
+    _, grids = map_grids(env, params, 16)
+    cost = jnp.ones(grids.shape[:1] + grids.shape[2:])  # unit cost everywhere: Manhattan distance to the target
+    values = np.asarray(propagation.propagate(cost, jnp.asarray(grids[:, 2]), 5))
+    rows, cols = np.indices(grids.shape[2:])
+    for target, value in zip(grids[:, 2], values):
+        t_row, t_col = np.argwhere(target > 0.5)[0]
+        manhattan = np.abs(rows - t_row) + np.abs(cols - t_col)
+        np.testing.assert_array_equal(value[manhattan <= 5], -manhattan[manhattan <= 5])
+        assert (value[manhattan > 5] == -propagation.BIG).all()
+
+
+def plain_propagation(cost: jax.Array, target: jax.Array, rounds: int) -> jax.Array:
+    """The same rounds written naively (pad and slice), differentiated by JAX's autodiff through the loop."""
+    values = jnp.where(target > 0.5, 0.0, -propagation.BIG)
+    for _ in range(rounds):
+        padded = jnp.pad(values, ((0, 0), (1, 1), (1, 1)), constant_values=-propagation.BIG)
+        best = jnp.maximum(jnp.maximum(padded[:, :-2, 1:-1], padded[:, 2:, 1:-1]),
+                           jnp.maximum(padded[:, 1:-1, :-2], padded[:, 1:-1, 2:]))
+        values = jnp.maximum(values, best - cost)
+    return values
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_custom_gradient_is_autodiff_of_the_plain_loop(seed):
+    rng = np.random.default_rng(seed)
+    count, size = 6, 7
+    blocked = rng.random((count, size, size)) < 0.25
+    target = np.zeros((count, size, size), np.float32)
+    target[np.arange(count), rng.integers(0, size, count), rng.integers(0, size, count)] = 1.0
+    # generic costs (paths tie with probability ~0), shelves dear
+    cost = jnp.asarray(rng.uniform(0.5, 2.0, (count, size, size)) + 5.0 * blocked, jnp.float32)
+    weights = jnp.asarray(rng.normal(size=(count, size, size)), jnp.float32)
+    rounds = 12  # fewer than some paths need: cells left at -BIG must get no gradient either way
+
+    ours = jax.grad(lambda c: (propagation.propagate(c, jnp.asarray(target), rounds) * weights).sum())(cost)
+    plain = jax.grad(lambda c: (plain_propagation(c, jnp.asarray(target), rounds) * weights).sum())(cost)
+    np.testing.assert_allclose(np.asarray(ours), np.asarray(plain), atol=1e-4)
+    np.testing.assert_array_equal(propagation.propagate(cost, jnp.asarray(target), rounds),
+                                  plain_propagation(cost, jnp.asarray(target), rounds))
+    assert np.abs(np.asarray(ours)).sum() > 1.0  # the gradient is not trivially zero
+
+
+def test_robot_features_rank_the_moves():
+    values = jnp.asarray([[-4.0, -3.0, -2.0], [-5.0, -4.0, -1.0], [-6.0, -5.0, 0.0]])  # target at (2, 2)
+    robot = jnp.zeros((3, 3)).at[1, 1].set(1.0)
+    features = np.asarray(propagation.robot_features(values, robot))
+    # up -3, down -5, left -5, right -1: right is best, the others relative to it; own value -4 / 64
+    np.testing.assert_allclose(features, [-2.0, -4.0, -4.0, 0.0, -4.0 / propagation.VALUE_SCALE])
+    corner = jnp.zeros((3, 3)).at[0, 0].set(1.0)  # off the map reads -BIG: clipped at -CLIP
+    features = np.asarray(propagation.robot_features(values, corner))
+    np.testing.assert_allclose(features[:4], [-propagation.CLIP, -2.0, -propagation.CLIP, 0.0])  # down -5, right -3
+
+
+def test_ppo_wires_one_propagation_for_actor_and_critic(map_env):
+    env, params = map_env
+    config = dataclasses.replace(ppo.PROCEDURAL, encoder="propagation", propagation_rounds=8)
+    algo = ppo.PPO(config, env, params)
+    networks = algo.unflatten(algo.flatten(algo._init_networks(jax.random.key(0))))
+    assert set(networks["actor"]["propagation"]) == {"kernel", "bias", "prior"}
+    assert "propagation" not in networks["critic"]
+    offset = env.map_observation()[0]
+    assert algo.num_features == offset + propagation.NUM_FEATURES
+    obs, _ = map_grids(env, params, 8)
+    inputs = algo.network_inputs(networks["actor"], obs)
+    assert inputs.shape == (8, algo.num_features)
+    np.testing.assert_array_equal(inputs[:, :offset], obs[:, :offset])
+    with pytest.raises(ValueError, match="critic reads the actor's propagation"):
+        algo.forward(networks["critic"], obs)
+    value = algo.forward(networks["critic"], obs, inputs=inputs)
+    assert value.shape == (8, 1)
+    # the actor's logits are its MLP plus prior x the action features (the output layer starts near zero)
+    logits = algo.forward(networks["actor"], obs)
+    assert np.abs(np.asarray(logits - inputs[:, offset : offset + 4])).max() < 0.1
+    longer = ppo.PPO(dataclasses.replace(config, propagation_rounds=16), env, params)
+    assert longer.flops_per_update() > algo.flops_per_update()  # the rounds are counted
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"encoder": "vin"}, "encoder must be one of"),
+        ({"encoder": "propagation", "obs_encoding": "onehot"}, "needs obs_encoding='raw'"),
+        ({"encoder": "propagation", "propagation_rounds": 0}, "propagation_rounds"),
+    ],
+)
+def test_bad_encoder_settings_are_refused(change, message):
+    with pytest.raises(ValueError, match=message):
+        dataclasses.replace(ppo.PROCEDURAL, **change).validate()
+
+
+def test_propagation_needs_a_map_in_the_observation():
+    env, params = make("Procedural-Warehouse-v0", pool_size=8)
+    assert env.map_observation() is None
+    with pytest.raises(ValueError, match="observe-map True"):
+        ppo.PPO(dataclasses.replace(ppo.PROCEDURAL, encoder="propagation"), env, params)
+
+
+def test_training_makes_shelves_dear_and_delivers_on_held_out_layouts():
+    """60 updates of 1,024 steps: the costs start equal on shelves and floor; PPO must raise the shelves'
+    (the network is told nothing about them) and deliver greedily on the periodic held-out evaluation."""
+    env, params = make("Procedural-Warehouse-v0", pool_size=256, observe_map=True)
+    config = dataclasses.replace(ppo.PROCEDURAL, encoder="propagation", num_envs=32, total_timesteps=60 * 1024,
+                                 hidden_sizes=(64, 64))
+    algo = ppo.PPO(config, env, params)
+    train = training.make_train(algo)
+    runner, metrics = jax.jit(train)(jax.random.key(0))
+    learned = algo.unflatten(runner.params)["actor"]["propagation"]
+    shelf = jax.nn.softplus(learned["bias"] + learned["kernel"][1, 1])
+    floor = jax.nn.softplus(learned["bias"])
+    assert float(shelf) > 2.0 * float(floor), (float(shelf), float(floor))
+    from wrl_jax.envs.procedural.evaluation import evaluate_policy
+
+    result = evaluate_policy(algo.greedy_action, algo.network_params(runner), env, params)
+    delivered = float(np.asarray(result.delivered)[np.asarray(result.real)].mean())
+    assert delivered > 0.85, delivered

@@ -1,0 +1,219 @@
+"""A network that plans: value propagation over the map in the observation.
+
+A multilayer perceptron sees a map as 768 unrelated numbers, and what it learns about
+one floor's shelves does not carry over to another floor's (docs/procedural.md, run 16:
+the full map made a 128x128 MLP worse). Planning is the same small rule applied at
+every cell, so a network that generalizes over floors applies one small learned rule
+at every cell too. This is the idea of value iteration networks (Tamar et al., 2016)
+and of value propagation networks (Nardelli et al., 2019), written here in the min-plus
+form of a shortest path with learned costs:
+
+- a **cost map**: ``c = softplus(w * blocked + b)``, with ``w`` a 3x3 kernel over the
+  map's blocked channel (shelves and off-grid, and one cell of off-grid around the
+  padded map) and ``b`` a bias: what it costs to leave each cell. Learned. At
+  initialization ``w = 0`` and ``c = 1`` everywhere: the network knows nothing of
+  shelves until training makes them dear;
+- ``rounds`` rounds of **propagation** from the target: ``u = 0`` on the target cell,
+  ``-BIG`` elsewhere, then ``u <- max(u, max over the 4 neighbours of u - c)``. After
+  ``k`` rounds ``u(s)`` is minus the cheapest cost of a path of at most ``k`` moves
+  from ``s`` to the target (``-BIG`` when there is none): a learned distance field,
+  computed inside the network from the observed map;
+- **features at the robot**: for each action, the value of the cell it leads to minus
+  the best of the four (``0`` for the best move, clipped at ``-CLIP``; ``-BIG`` off the
+  padded map), and the robot's own value (clipped, scaled). They join the rest of the
+  observation (the window, the memory) as the input of the actor's and the critic's
+  MLP, and the actor adds them to its logits with a learned weight (``prior``): a
+  policy that can follow the learned field from its first update.
+
+The observation still has no distance field (the issue's rule for the generalization
+claim): only the map, the robot's and the target's cells. The distance is the
+network's own computation, with learned costs, from the same parameters on every
+floor. The actor owns the propagation; the critic reads the same features (one
+propagation per observation; the value loss teaches the costs too). Gradients reach
+the costs along every cell's path of best moves (:func:`propagate`'s custom backward
+pass, about the cost of one forward pass).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+
+from wrl_jax.core.grid import MOVES
+
+BIG = 1.0e4
+"""Minus the value of a cell no path of ``rounds`` moves joins to the target."""
+
+CLIP = 16.0
+"""The action features' floor: a move more than this much dearer than the best reads as ``-CLIP``."""
+
+VALUE_SCALE = 64.0
+"""The robot's own value enters the MLPs clipped at ``-VALUE_SCALE`` and divided by it."""
+
+NUM_FEATURES = len(MOVES) + 1
+"""What the propagation adds to an MLP's input: one feature per action, then the robot's value."""
+
+_UNIT_COST_BIAS = math.log(math.e - 1.0)  # softplus(b) = 1: every cell costs one move at initialization
+
+
+def init_propagation() -> dict[str, jax.Array]:
+    """The propagation's parameters: the 3x3 cost kernel, its bias, and the weight of the actor's prior
+    (the action features added to its logits)."""
+    return {
+        "kernel": jnp.zeros((3, 3), jnp.float32),
+        "bias": jnp.asarray(_UNIT_COST_BIAS, jnp.float32),
+        "prior": jnp.asarray(1.0, jnp.float32),
+    }
+
+
+def shifted(x: jax.Array, d_row: int, d_col: int, fill: float) -> jax.Array:
+    """``x`` read at ``(r + d_row, c + d_col)`` for every cell ``(r, c)`` of its last two axes; ``fill`` outside."""
+    pad = [(0, 0)] * (x.ndim - 2) + [(1, 1), (1, 1)]
+    height, width = x.shape[-2:]
+    padded = jnp.pad(x, pad, constant_values=fill)
+    return padded[..., 1 + d_row : 1 + d_row + height, 1 + d_col : 1 + d_col + width]
+
+
+def cost_map(params: dict[str, jax.Array], blocked: jax.Array) -> jax.Array:
+    """``(..., H, W)`` float32 > 0: the learned cost of leaving each cell (off the map counts as blocked)."""
+    logit = params["bias"]
+    for i in range(3):
+        for j in range(3):
+            logit = logit + params["kernel"][i, j] * shifted(blocked, i - 1, j - 1, 1.0)
+    return jax.nn.softplus(logit)
+
+
+def neighbour(x: jax.Array, d_row: int, d_col: int) -> jax.Array:
+    """``x`` read at ``(r + d_row, c + d_col)`` (one step, ``|d| <= 1``), its edge cells repeated outside.
+
+    For the loops, on arrays with a border of their own (:func:`propagate` pads once): written
+    as a concatenation, which XLA's CPU backend as the commands configure it
+    (``--xla_cpu_use_fusion_emitters=false``) runs about 3x faster than a pad and a slice.
+    """
+    if d_row:
+        inner = x[..., :-1, :] if d_row < 0 else x[..., 1:, :]
+        edge = x[..., :1, :] if d_row < 0 else x[..., -1:, :]
+        return jnp.concatenate([edge, inner] if d_row < 0 else [inner, edge], axis=-2)
+    if d_col:
+        inner = x[..., :-1] if d_col < 0 else x[..., 1:]
+        edge = x[..., :1] if d_col < 0 else x[..., -1:]
+        return jnp.concatenate([edge, inner] if d_col < 0 else [inner, edge], axis=-1)
+    return x
+
+
+def _bordered(x: jax.Array, fill: float) -> jax.Array:
+    return jnp.pad(x, [(0, 0)] * (x.ndim - 2) + [(1, 1), (1, 1)], constant_values=fill)
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(2,))
+def propagate(cost: jax.Array, target: jax.Array, rounds: int) -> jax.Array:
+    """``(..., H, W)``: minus the cheapest cost of at most ``rounds`` moves to the target (``-BIG``: none).
+
+    Differentiable in ``cost`` (not in ``target``) by :func:`_propagate_backward`.
+    """
+    values, _ = _propagate_forward(cost, target, rounds)
+    return values[..., 1:-1, 1:-1]
+
+
+def _propagate_forward(cost: jax.Array, target: jax.Array, rounds: int) -> tuple[jax.Array, jax.Array]:
+    """The values and the costs with a border of one cell (``-BIG`` and ``BIG``: never on a path)."""
+    cost = _bordered(cost, BIG)
+    values = _bordered(jnp.where(target > 0.5, 0.0, -BIG), -BIG)
+
+    def one_round(_, values):
+        best = neighbour(values, *MOVES[0])
+        for d_row, d_col in MOVES[1:]:
+            best = jnp.maximum(best, neighbour(values, int(d_row), int(d_col)))
+        return jnp.maximum(values, best - cost)
+
+    return jax.lax.fori_loop(0, rounds, one_round, values), cost
+
+
+def _propagate_fwd(cost, target, rounds):
+    values, bordered_cost = _propagate_forward(cost, target, rounds)
+    return values[..., 1:-1, 1:-1], (values, bordered_cost, target)
+
+
+def _propagate_backward(rounds, residuals, cotangent):
+    """The gradient of the values in the costs, by following every cell's best move.
+
+    A reached cell's value is its best neighbour's minus its own cost, so it is minus the
+    sum of the costs along the path of best moves from it to the target: ``d values(s) /
+    d cost(x)`` is ``-1`` for each cell ``x`` on that path other than the target (``s``
+    included), else ``0``. So ``cost``'s cotangent at ``x`` is minus the sum of
+    ``cotangent(s)`` over the cells ``s`` whose path passes through ``x``: accumulated by
+    ``rounds`` rounds of pushing each cell's sum one move along its best move (paths have at
+    most ``rounds`` moves). Differentiating the forward loop instead (a scan storing every
+    round) cost about 15 forward passes; this costs about one. Ties take the first best
+    move in ``MOVES`` order (a subgradient).
+    """
+    values, cost, target = residuals  # values and cost bordered
+    candidates = jnp.stack([neighbour(values, int(r), int(c)) for r, c in MOVES])  # (4, ..., H + 2, W + 2)
+    best_move = jnp.argmax(candidates, axis=0)
+    on_a_path = (values > -BIG / 2) & (_bordered(target, 0.0) <= 0.5)  # reached, and not the target itself
+    moving = [(best_move == a) & on_a_path for a in range(len(MOVES))]
+    cotangent = _bordered(cotangent, 0.0)
+
+    def one_round(_, through):
+        total = cotangent
+        for a, (d_row, d_col) in enumerate(MOVES):  # cell s moving by d hands its sum to s + d
+            total = total + neighbour(jnp.where(moving[a], through, 0.0), -int(d_row), -int(d_col))
+        return total
+
+    through = jax.lax.fori_loop(0, rounds, one_round, cotangent)
+    cost_cotangent = -jnp.where(on_a_path, through, 0.0)[..., 1:-1, 1:-1]
+    return cost_cotangent, jnp.zeros_like(target)
+
+
+propagate.defvjp(_propagate_fwd, _propagate_backward)
+
+
+def robot_features(values: jax.Array, robot: jax.Array) -> jax.Array:
+    """``(..., NUM_FEATURES)``: per action, the value it leads to relative to the best (in ``[-CLIP, 0]``),
+    then the robot's own value (in ``[-1, 0]``). ``robot``: the map's one-hot channel of the robot's cell."""
+    neighbours = jnp.stack(
+        [(shifted(values, int(d_row), int(d_col), -BIG) * robot).sum(axis=(-2, -1)) for d_row, d_col in MOVES],
+        axis=-1,
+    )
+    relative = jnp.clip(neighbours - neighbours.max(axis=-1, keepdims=True), -CLIP, 0.0)
+    own = jnp.clip((values * robot).sum(axis=(-2, -1)), -VALUE_SCALE, 0.0) / VALUE_SCALE
+    return jnp.concatenate([relative, own[..., None]], axis=-1)
+
+
+def map_features(params: dict[str, jax.Array], obs: jax.Array, layout: tuple[int, int, int], rounds: int):
+    """``(..., D - 3 H W + NUM_FEATURES)``: the MLPs' input, the observation without its map, then
+    :func:`robot_features` of the values propagated over it with ``params``' costs.
+
+    ``layout = (offset, H, W)``: the map's place in the observation, 3 channels of ``H x W``
+    (blocked, the robot, the target), channel-major (``env.map_observation()``).
+    """
+    offset, height, width = layout
+    end = offset + 3 * height * width
+    grid = obs[..., offset:end].reshape(*obs.shape[:-1], 3, height, width)
+    blocked, robot, target = grid[..., 0, :, :], grid[..., 1, :, :], grid[..., 2, :, :]
+    values = propagate(cost_map(params, blocked), target, rounds)
+    return jnp.concatenate([obs[..., :offset], obs[..., end:], robot_features(values, robot)], axis=-1)
+
+
+def propagation_forward_flops(height: int, width: int, rounds: int) -> int:
+    """Floating-point operations of :func:`map_features` for one observation (the maxima and
+    subtractions of the rounds dominate: 4 neighbours x (a subtraction and a maximum) per cell and round)."""
+    cells = height * width
+    return cells * (rounds * 8 + 9 * 2 + 4 * 2 + 2)
+
+
+def check_map_layout(layout, env_name: str, obs_size: int) -> tuple[int, int, int]:
+    """The environment's ``(offset, H, W)``, checked; a ``ValueError`` naming the env if it has no map."""
+    if layout is None:
+        raise ValueError(
+            f"PPO encoder='propagation' plans over a map in the observation; {env_name} observes none "
+            f"(Procedural-Warehouse-v0 with observe_map=True does: --observe-map True)"
+        )
+    offset, height, width = (int(v) for v in layout)
+    if offset < 0 or offset + 3 * height * width > obs_size:
+        raise ValueError(f"{env_name}'s map ({offset}, {height}, {width}) does not fit its {obs_size}-value observation")
+    return offset, height, width
+
