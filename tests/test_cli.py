@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from wrl_jax import checkpoint, cli, metrics_io
+from wrl_jax.cli.options import build
 
 REPO = Path(__file__).resolve().parent.parent
 TINY = [
@@ -185,3 +186,17 @@ def test_shaping_flag_reaches_the_procedural_warehouse_and_is_refused_on_the_stu
     assert command.env.overrides()["shaping"] == "bfs"
     with pytest.raises(ValueError, match="--shaping: fleet or procedural options"):
         cli.parse("ppo", ["--env", "Warehouse-8x8-v0", "--shaping", "bfs", "--out", str(tmp_path / "b")])
+
+
+def test_encoder_flag_builds_the_propagation_policy_and_refuses_an_env_without_a_map(tmp_path):
+    """``--encoder propagation`` reaches PPO's config; without ``--observe-map True`` the build (before any
+    compilation) names the missing map and the flag that adds it."""
+    argv = ["--env", "Procedural-Warehouse-v0", "--encoder", "propagation", "--propagation-rounds", "32",
+            "--pool-size", "16"]
+    command = cli.parse("ppo", [*argv, "--observe-map", "True", "--out", str(tmp_path / "a")])
+    assert (command.config.encoder, command.config.propagation_rounds) == ("propagation", 32)
+    algo = build(command.spec, command.config, command.env)
+    assert algo.map_layout == algo.env.map_observation()
+    command = cli.parse("ppo", [*argv, "--out", str(tmp_path / "b")])
+    with pytest.raises(ValueError, match="observes none .*--observe-map True"):
+        build(command.spec, command.config, command.env)

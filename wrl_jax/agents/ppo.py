@@ -95,10 +95,10 @@ class PPOConfig:
             global state (``env.global_state``), the actor still only its own.
         encoder: ``"mlp"``: the observation straight into the MLPs. ``"propagation"``:
             environments whose observation holds a map (``env.map_observation()``,
-            e.g. ``Procedural-Warehouse-v0`` with ``observe_map=True``): each network
-            first propagates values from the target over the map with learned costs
-            (:mod:`wrl_jax.agents.propagation`) and its MLP sees the rest of the
-            observation and the values around the robot instead of the map.
+            e.g. ``Procedural-Warehouse-v0`` with ``observe_map=True``): values are first
+            propagated from the target over the map with learned costs (the actor's
+            parameters, :mod:`wrl_jax.agents.propagation`), and both MLPs see the rest
+            of the observation and the values around the robot instead of the map.
         propagation_rounds: rounds of that propagation (the longest path it sees, in moves).
 
     Traced (vmappable, :class:`PPOHyper`):

@@ -31,7 +31,7 @@ network's own computation, with learned costs, from the same parameters on every
 floor. The actor owns the propagation; the critic reads the same features (one
 propagation per observation; the value loss teaches the costs too). Gradients reach
 the costs along every cell's path of best moves (:func:`propagate`'s custom backward
-pass, about the cost of one forward pass).
+pass, 7-14x cheaper than autodiff through the rounds).
 """
 
 from __future__ import annotations
@@ -146,8 +146,8 @@ def _propagate_backward(rounds, residuals, cotangent):
     included), else ``0``. So ``cost``'s cotangent at ``x`` is minus the sum of
     ``cotangent(s)`` over the cells ``s`` whose path passes through ``x``: accumulated by
     ``rounds`` rounds of pushing each cell's sum one move along its best move (paths have at
-    most ``rounds`` moves). Differentiating the forward loop instead (a scan storing every
-    round) cost about 15 forward passes; this costs about one. Ties take the first best
+    most ``rounds`` moves). Autodiff through the forward loop instead (a scan storing every
+    round) measured 7-14x slower (``bench/propagation_speed.py``). Ties take the first best
     move in ``MOVES`` order (a subgradient).
     """
     values, cost, target = residuals  # values and cost bordered
