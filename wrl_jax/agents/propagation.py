@@ -71,9 +71,8 @@ def init_propagation() -> dict[str, jax.Array]:
 
 def shifted(x: jax.Array, d_row: int, d_col: int, fill: float) -> jax.Array:
     """``x`` read at ``(r + d_row, c + d_col)`` for every cell ``(r, c)`` of its last two axes; ``fill`` outside."""
-    pad = [(0, 0)] * (x.ndim - 2) + [(1, 1), (1, 1)]
     height, width = x.shape[-2:]
-    padded = jnp.pad(x, pad, constant_values=fill)
+    padded = _bordered(x, fill)
     return padded[..., 1 + d_row : 1 + d_row + height, 1 + d_col : 1 + d_col + width]
 
 
@@ -199,10 +198,11 @@ def map_features(params: dict[str, jax.Array], obs: jax.Array, layout: tuple[int
 
 
 def propagation_forward_flops(height: int, width: int, rounds: int) -> int:
-    """Floating-point operations of :func:`map_features` for one observation (the maxima and
-    subtractions of the rounds dominate: 4 neighbours x (a subtraction and a maximum) per cell and round)."""
+    """Floating-point operations of :func:`map_features` for one observation. The rounds dominate: per
+    cell and round, the best of 4 neighbours (3 maxima), minus the cost, kept if better (5); then the
+    cost map (9 multiply-adds and a softplus per cell) and the features (4 neighbours x a product and a sum)."""
     cells = height * width
-    return cells * (rounds * 8 + 9 * 2 + 4 * 2 + 2)
+    return cells * (rounds * 5 + 9 * 2 + 4 * 2 + 2)
 
 
 def check_map_layout(layout, env_name: str, obs_size: int) -> tuple[int, int, int]:
