@@ -52,7 +52,9 @@ def map_grids(env, params, count: int):
 def test_with_dear_shelves_the_values_are_minus_the_bfs_distance(map_env):
     env, params = map_env
     obs, grids = map_grids(env, params, 48)
-    dear_shelves = {"kernel": jnp.zeros((3, 3)).at[1, 1].set(60.0), "bias": jnp.asarray(np.log(np.e - 1.0))}
+    scale = propagation.COST_PARAMETER_SCALE  # logit = scale x (kernel * blocked + bias): floor 1, shelves ~60
+    dear_shelves = {"kernel": jnp.zeros((3, 3)).at[1, 1].set(60.0 / scale),
+                    "bias": jnp.asarray(np.log(np.e - 1.0) / scale)}
     cost = propagation.cost_map(dear_shelves, jnp.asarray(grids[:, 0]))
     values = np.asarray(propagation.propagate(cost, jnp.asarray(grids[:, 2]), 64))
     checked = 0
