@@ -329,7 +329,7 @@ class PPO(Algorithm[PPORunner]):
         for layer in layers[1:]:
             x = self.activation(x) @ layer["kernel"] + layer["bias"]
         if self.map_layout is not None and "propagation" in network:
-            x = x + network["propagation"]["prior"] * obs[..., -propagation.NUM_FEATURES : -1]
+            x = x + network["propagation"]["prior"] * propagation.action_features(obs)
         return x
 
     def flatten(self, networks: dict[str, Any]) -> jax.Array:

@@ -202,6 +202,11 @@ def map_features(params: dict[str, jax.Array], obs: jax.Array, layout: tuple[int
     return jnp.concatenate([obs[..., :offset], obs[..., end:], robot_features(values, robot)], axis=-1)
 
 
+def action_features(inputs: jax.Array) -> jax.Array:
+    """``(..., 4)``: the per-action features inside :func:`map_features`' output (the actor's prior)."""
+    return inputs[..., -NUM_FEATURES:-1]
+
+
 def propagation_forward_flops(height: int, width: int, rounds: int) -> int:
     """Floating-point operations of :func:`map_features` for one observation. The rounds dominate: per
     cell and round, the best of 4 neighbours (3 maxima), minus the cost, kept if better (5); then the
@@ -210,7 +215,7 @@ def propagation_forward_flops(height: int, width: int, rounds: int) -> int:
     return cells * (rounds * 5 + 9 * 2 + 4 * 2 + 2)
 
 
-def check_map_layout(layout, env_name: str, obs_size: int) -> tuple[int, int, int]:
+def check_map_layout(layout: tuple[int, int, int] | None, env_name: str, obs_size: int) -> tuple[int, int, int]:
     """The environment's ``(offset, H, W)``, checked; a ``ValueError`` naming the env if it has no map."""
     if layout is None:
         raise ValueError(
