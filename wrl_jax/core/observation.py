@@ -183,23 +183,27 @@ def robot_observation_parts(
 def expand_observations(scalars: jax.Array, masks: jax.Array, view_radius: int) -> jax.Array:
     """``(..., 5 + C (2V+1)^2)`` float32 observations from :func:`robot_observation_parts`' compact form.
 
-    One elementwise expression over the output's columns (scalar columns copy, window columns
-    read one bit of their channel's mask), so XLA fuses it into whatever consumes the
-    observation instead of materializing the windows first. ``C`` is the masks' channel count
-    (3, or 4 with the priority channel).
+    The scalars are copied and followed by the window columns. Window column ``c`` (channel ``k``,
+    cell ``w``) is 1.0 where ``masks[..., k]`` has bit ``w`` set. Each window column reads every
+    channel's mask ANDed with a constant, ``1 << w`` in the column's own channel and 0 in the others,
+    and ORs the results: the same three (or four) integer ops and one compare for every column, no
+    per-column choice of channel. XLA's CPU loop emitter turns that into a few vector instructions
+    per 16 columns with the constants as memory operands; a chain of ``where``\s on the column's
+    channel compiled to byte-mask conversions and blends per select and expanded observations at
+    about half the speed (``bench/fleet_step_profile.py``; docs/fleet_planners.md "Speed"). The
+    expression is elementwise, so XLA fuses it into whatever consumes the observation.
+    ``C`` is the masks' channel count (3, or 4 with the priority channel, 5 with headings too).
     """
     cells = window_size(view_radius) ** 2
     num_channels = masks.shape[-1]
-    column = np.arange(5 + num_channels * cells)
-    channel, bit = np.divmod(np.maximum(column - 5, 0), cells)
-    mask = masks[..., num_channels - 1:num_channels]
-    for index in range(num_channels - 2, -1, -1):
-        mask = jnp.where(channel == index, masks[..., index:index + 1], mask)
-    window = ((mask >> bit.astype(np.int32)) & 1).astype(jnp.float32)
-    scalar = scalars[..., 4:5]
-    for index in range(3, -1, -1):
-        scalar = jnp.where(column == index, scalars[..., index:index + 1], scalar)
-    return jnp.where(column < 5, scalar, window)
+    channel, cell = np.divmod(np.arange(num_channels * cells), cells)
+    seen = None
+    for index in range(num_channels):
+        column_bits = np.where(channel == index, np.left_shift(1, cell), 0).astype(np.int32)
+        term = masks[..., index:index + 1] & column_bits
+        seen = term if seen is None else seen | term
+    window = jnp.where(seen != 0, np.float32(1.0), np.float32(0.0))
+    return jnp.concatenate([scalars, window], axis=-1)
 
 
 def robot_observations_from_bits(
