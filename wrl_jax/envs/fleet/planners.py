@@ -97,9 +97,11 @@ def candidate_distances(
     size = item_dist.shape[-1]
     cells, on_grid = candidate_cells(pos, size)
     rows, cols = jnp.clip(cells[..., 0], 0, size - 1), jnp.clip(cells[..., 1], 0, size - 1)
-    to_item = item_dist[item[:, None], rows, cols]
-    to_station = station_dist[station[:, None], rows, cols]
-    dist = jnp.where(carrying[:, None], to_station, to_item)
+    # One gather from the item tables stacked on the station tables (under vmap with shared
+    # params the stack is built once per batch), not one from each and a select.
+    tables = jnp.concatenate([item_dist, station_dist], axis=0)
+    target_row = jnp.where(carrying, item_dist.shape[0] + station, item)
+    dist = tables[target_row[:, None], rows, cols]
     return jnp.where(on_grid, dist, UNREACHABLE).astype(jnp.int32)
 
 
@@ -114,7 +116,17 @@ def greedy_actions(cand_dist: jax.Array) -> jax.Array:
     """Per robot, the lowest-index move one step closer to its target, else wait: ``(K,)`` int32."""
     here = cand_dist[:, WAIT:WAIT + 1]
     closer = (cand_dist[:, :WAIT] == here - 1) & (here > 0)
-    return jnp.where(jnp.any(closer, axis=1), jnp.argmax(closer, axis=1), WAIT).astype(jnp.int32)
+    return _first_action(closer)
+
+
+def _first_action(allowed: jax.Array) -> jax.Array:
+    """``(K,)`` int32: per row of ``allowed (K, 4)`` the lowest move index set, else wait.
+
+    A ``min`` over ``where(allowed, index, WAIT)``: one plain reduction, where ``argmax`` is a
+    reduction over (value, index) pairs that XLA's CPU backend compiles to a slow loop.
+    """
+    moves = jnp.arange(WAIT, dtype=jnp.int32)
+    return jnp.min(jnp.where(allowed, moves[None, :], WAIT), axis=1).astype(jnp.int32)
 
 
 # ------------------------------------------------------------------ PIBT priorities
@@ -167,28 +179,28 @@ class _Search:
     """The explicit stack of one PIBT step (see :func:`pibt_choices`), kept as parent links."""
 
     next_cell: jax.Array  # (K,) int32 cell reserved for t+1, -1 while undecided
-    slot: jax.Array  # (K,) int32 position in the robot's preference list it holds or tries next
+    floor: jax.Array  # (K,) int32 least preference key the robot may still take (its reserved one while it holds it)
     pusher: jax.Array  # (K,) int32 the robot that pushed it (its parent frame), -1 for a root
     top: jax.Array  # () int32 the robot searching now (top of the stack), -1 when the stack is empty
 
 
-def preference_lists(cand_cell: jax.Array, cand_dist: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """Each robot's candidates in preference order: cells ``(K, 5)``, enterable ``(K, 5)``, standing robot ``(K, 5)``.
+def preference_keys(cand_cell: jax.Array, cand_dist: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Each robot's candidates in action order: preference key ``(K, 5)``, enterable ``(K, 5)``, standing robot ``(K, 5)``.
 
-    Order: by distance to the target, ties by action index; cells it may not
-    enter last. Ranks come from a 5x5 comparison of unique keys (no sort).
-    The standing robot is the one on that cell now, ``-1`` if none.
+    The key orders a robot's candidates as PIBT prefers them: ``distance * 8 + action``, so by
+    distance to the target, ties by action index, cells it may not enter (distance
+    ``UNREACHABLE``) last. Keys are unique per robot, so "the preferred open candidate" is the
+    open one with the least key, and "the candidates after the one it holds" are those with a
+    larger key: the search never needs the lists sorted. The standing robot is the one on that
+    cell now (the robot itself for the wait), ``-1`` if none.
     """
     key = jnp.minimum(cand_dist, _FAR) * 8 + jnp.arange(NUM_CANDIDATES, dtype=jnp.int32)
-    rank = jnp.sum(key[:, None, :] < key[:, :, None], axis=2)  # [i, a]: slot of action a
-    at_slot = rank[:, None, :] == jnp.arange(NUM_CANDIDATES)[None, :, None]  # [i, slot, a]
-    pick = lambda values: jnp.sum(jnp.where(at_slot, values[:, None, :], 0), axis=2)  # noqa: E731
-    cells = pick(cand_cell)
-    enterable = pick((cand_dist < UNREACHABLE).astype(jnp.int32)) > 0
+    enterable = (cand_dist < UNREACHABLE) & (cand_cell >= 0)
     here = cand_cell[:, WAIT]
-    stands = cells[:, :, None] == here[None, None, :]  # [i, slot, j]
-    standing = jnp.where(jnp.any(stands, axis=2), jnp.argmax(stands, axis=2), -1).astype(jnp.int32)
-    return cells.astype(jnp.int32), enterable & (cells >= 0), standing
+    robots = jnp.arange(cand_cell.shape[0], dtype=jnp.int32)
+    stands = cand_cell[:, :, None] == here[None, None, :]  # [i, a, j]; own cells are distinct: one j at most
+    standing = jnp.max(jnp.where(stands, robots[None, None, :], -1), axis=2)
+    return key.astype(jnp.int32), enterable, standing
 
 
 def pibt_choices(cand_cell: jax.Array, cand_dist: jax.Array, priority: jax.Array) -> jax.Array:
@@ -196,16 +208,17 @@ def pibt_choices(cand_cell: jax.Array, cand_dist: jax.Array, priority: jax.Array
 
     One ``lax.while_loop`` iteration is one try of the robot on top of the
     stack (with an empty stack, of the most urgent undecided robot, which
-    becomes a root): it reserves its first preferred cell from its current
-    slot on that is enterable, not reserved, and not its pusher's cell. Then
+    becomes a root): it reserves its preferred candidate (least key of
+    :func:`preference_keys`) among those at or after its floor that are enterable,
+    not reserved, and not its pusher's cell. Then
     either an undecided robot stands there (push it: it searches next), or
     nobody does (success: every pusher returns valid as soon as its child
     does, so the whole stack is done at once), or there was no such cell (it
-    stays; its pusher drops the reservation and moves to its next slot).
+    stays; its pusher drops the reservation and raises its floor past it).
     Every robot is pushed at most once and gives up at most once, and each
-    success ends a root's search, so a step takes fewer than ``3K`` iterations. The body uses only ``(K,)``-wide selects
-    and ``(5, K)`` comparisons (no scatter, no sort), which is what makes it
-    cheap under ``vmap``.
+    success ends a root's search, so a step takes fewer than ``3K`` iterations. The body uses only
+    ``(K,)``- and ``(5,)``-wide selects and ``(5, K)`` comparisons (no scatter, no sort), which is
+    what makes it cheap under ``vmap``.
 
     Args:
         cand_cell: ``(K, 5)`` int32 cell id of each action's cell (negative
@@ -216,10 +229,10 @@ def pibt_choices(cand_cell: jax.Array, cand_dist: jax.Array, priority: jax.Array
     """
     num_robots = cand_cell.shape[0]
     robots = jnp.arange(num_robots, dtype=jnp.int32)
-    slots = jnp.arange(NUM_CANDIDATES, dtype=jnp.int32)
-    pref_cell, pref_ok, pref_holder = preference_lists(cand_cell, cand_dist)
+    pref_key, pref_ok, pref_holder = preference_keys(cand_cell, cand_dist)
     here = cand_cell[:, WAIT]
     lowest = jnp.iinfo(jnp.int32).min
+    beyond = jnp.iinfo(jnp.int32).max
 
     def running(s: _Search) -> jax.Array:
         return (s.top >= 0) | jnp.any(s.next_cell < 0)
@@ -227,37 +240,40 @@ def pibt_choices(cand_cell: jax.Array, cand_dist: jax.Array, priority: jax.Array
     def try_once(s: _Search) -> _Search:
         undecided = s.next_cell < 0
         at_root = s.top < 0
-        i = jnp.where(at_root, jnp.argmax(jnp.where(undecided, priority, lowest)), s.top).astype(jnp.int32)
+        most_urgent = jnp.max(jnp.where(undecided, priority, lowest))  # priorities are distinct
+        root = jnp.max(jnp.where(undecided & (priority == most_urgent), robots, 0))
+        i = jnp.where(at_root, root, s.top).astype(jnp.int32)
         parent = jnp.where(at_root, -1, s.pusher[i])
-        cells, holders = pref_cell[i], pref_holder[i]
+        cells, holders, keys = cand_cell[i], pref_holder[i], pref_key[i]
         open_ = (
             pref_ok[i]
-            & (slots >= s.slot[i])
+            & (keys >= s.floor[i])
             & ~jnp.any(cells[:, None] == s.next_cell[None, :], axis=1)
             & ((parent < 0) | (holders != parent))  # never into the pusher's cell: no swap
         )
-        found = jnp.any(open_)
-        slot = jnp.argmax(open_).astype(jnp.int32)
-        cell, holder = cells[slot], holders[slot]
+        best = jnp.min(jnp.where(open_, keys, beyond))
+        found = best < beyond
+        choice = jnp.where(found, best % 8, 0)  # a key's low three bits are its action
+        cell, holder = cells[choice], holders[choice]
         push = found & (holder >= 0) & (holder != i) & undecided[jnp.maximum(holder, 0)]
 
         is_i, is_parent = robots == i, (robots == parent) & ~found
         next_cell = jnp.where(is_i, jnp.where(found, cell, here[i]), s.next_cell)
         next_cell = jnp.where(is_parent, -1, next_cell)  # i stays on the cell its pusher had reserved
-        slot_of = jnp.where(is_i & found, slot, jnp.where(is_parent, s.slot + 1, s.slot))
+        floor = jnp.where(is_i & found, best, jnp.where(is_parent, s.floor + 1, s.floor))
         pusher = jnp.where((robots == holder) & push, i, s.pusher)
         top = jnp.where(push, holder, jnp.where(found, -1, parent))
-        return _Search(next_cell=next_cell, slot=slot_of, pusher=pusher, top=top.astype(jnp.int32))
+        return _Search(next_cell=next_cell, floor=floor, pusher=pusher, top=top.astype(jnp.int32))
 
     init = _Search(
         next_cell=jnp.full(num_robots, -1, dtype=jnp.int32),
-        slot=jnp.zeros(num_robots, dtype=jnp.int32),
+        floor=jnp.zeros(num_robots, dtype=jnp.int32),
         pusher=jnp.full(num_robots, -1, dtype=jnp.int32),
         top=jnp.full((), -1, dtype=jnp.int32),
     )
     final = jax.lax.while_loop(running, try_once, init)
     chosen = (final.next_cell[:, None] == cand_cell[:, :WAIT]) & (cand_dist[:, :WAIT] < UNREACHABLE)
-    return jnp.where(jnp.any(chosen, axis=1), jnp.argmax(chosen, axis=1), WAIT).astype(jnp.int32)
+    return _first_action(chosen)
 
 
 def pibt_actions(pos: jax.Array, cand_dist: jax.Array, priority: jax.Array, size: int) -> jax.Array:
