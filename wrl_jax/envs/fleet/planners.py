@@ -171,7 +171,10 @@ def pibt_update(state: PibtState, reached: jax.Array) -> PibtState:
 
 # ------------------------------------------------------------------ PIBT core
 _FAR = 1 << 20
-"""Stands for "may not enter" in the preference keys (distances on any grid here are far below it)."""
+"""Caps distances in the preference keys (distances on any grid here are far below it)."""
+
+NO_ENTRY = jnp.iinfo(jnp.int32).max
+"""The preference key of a cell a robot may not enter (:func:`preference_keys`): above every other key."""
 
 
 @struct.dataclass
@@ -184,23 +187,19 @@ class _Search:
     top: jax.Array  # () int32 the robot searching now (top of the stack), -1 when the stack is empty
 
 
-def preference_keys(cand_cell: jax.Array, cand_dist: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """Each robot's candidates in action order: preference key ``(K, 5)``, enterable ``(K, 5)``, standing robot ``(K, 5)``.
+def preference_keys(cand_cell: jax.Array, cand_dist: jax.Array) -> jax.Array:
+    """Each robot's candidates in action order as preference keys ``(K, 5)`` int32: less is preferred.
 
     The key orders a robot's candidates as PIBT prefers them: ``distance * 8 + action``, so by
-    distance to the target, ties by action index, cells it may not enter (distance
-    ``UNREACHABLE``) last. Keys are unique per robot, so "the preferred open candidate" is the
-    open one with the least key, and "the candidates after the one it holds" are those with a
-    larger key: the search never needs the lists sorted. The standing robot is the one on that
-    cell now (the robot itself for the wait), ``-1`` if none.
+    distance to the target, ties by action index; a cell it may not enter (a shelf, off the grid)
+    gets :data:`NO_ENTRY`, above every other key. Keys are unique per robot, so "the preferred
+    open candidate" is the open one with the least key, "the candidates after the one it holds"
+    are those with a larger key, and a key's low three bits are its action: the search never
+    needs the lists sorted.
     """
     key = jnp.minimum(cand_dist, _FAR) * 8 + jnp.arange(NUM_CANDIDATES, dtype=jnp.int32)
     enterable = (cand_dist < UNREACHABLE) & (cand_cell >= 0)
-    here = cand_cell[:, WAIT]
-    robots = jnp.arange(cand_cell.shape[0], dtype=jnp.int32)
-    stands = cand_cell[:, :, None] == here[None, None, :]  # [i, a, j]; own cells are distinct: one j at most
-    standing = jnp.max(jnp.where(stands, robots[None, None, :], -1), axis=2)
-    return key.astype(jnp.int32), enterable, standing
+    return jnp.where(enterable, key, NO_ENTRY).astype(jnp.int32)
 
 
 def pibt_choices(cand_cell: jax.Array, cand_dist: jax.Array, priority: jax.Array) -> jax.Array:
@@ -209,7 +208,7 @@ def pibt_choices(cand_cell: jax.Array, cand_dist: jax.Array, priority: jax.Array
     One ``lax.while_loop`` iteration is one try of the robot on top of the
     stack (with an empty stack, of the most urgent undecided robot, which
     becomes a root): it reserves its preferred candidate (least key of
-    :func:`preference_keys`) among those at or after its floor that are enterable,
+    :func:`preference_keys`) among those at or after its floor that it may enter,
     not reserved, and not its pusher's cell. Then
     either an undecided robot stands there (push it: it searches next), or
     nobody does (success: every pusher returns valid as soon as its child
@@ -218,7 +217,7 @@ def pibt_choices(cand_cell: jax.Array, cand_dist: jax.Array, priority: jax.Array
     Every robot is pushed at most once and gives up at most once, and each
     success ends a root's search, so a step takes fewer than ``3K`` iterations. The body uses only
     ``(K,)``- and ``(5,)``-wide selects and ``(5, K)`` comparisons (no scatter, no sort), which is
-    what makes it cheap under ``vmap``.
+    what makes it cheap under ``vmap``; who stands on a cell is looked up for the one cell taken.
 
     Args:
         cand_cell: ``(K, 5)`` int32 cell id of each action's cell (negative
@@ -229,10 +228,9 @@ def pibt_choices(cand_cell: jax.Array, cand_dist: jax.Array, priority: jax.Array
     """
     num_robots = cand_cell.shape[0]
     robots = jnp.arange(num_robots, dtype=jnp.int32)
-    pref_key, pref_ok, pref_holder = preference_keys(cand_cell, cand_dist)
+    pref_key = preference_keys(cand_cell, cand_dist)
     here = cand_cell[:, WAIT]
     lowest = jnp.iinfo(jnp.int32).min
-    beyond = jnp.iinfo(jnp.int32).max
 
     def running(s: _Search) -> jax.Array:
         return (s.top >= 0) | jnp.any(s.next_cell < 0)
@@ -244,17 +242,16 @@ def pibt_choices(cand_cell: jax.Array, cand_dist: jax.Array, priority: jax.Array
         root = jnp.max(jnp.where(undecided & (priority == most_urgent), robots, 0))
         i = jnp.where(at_root, root, s.top).astype(jnp.int32)
         parent = jnp.where(at_root, -1, s.pusher[i])
-        cells, holders, keys = cand_cell[i], pref_holder[i], pref_key[i]
+        cells, keys = cand_cell[i], pref_key[i]
         open_ = (
-            pref_ok[i]
-            & (keys >= s.floor[i])
+            (keys >= s.floor[i])
             & ~jnp.any(cells[:, None] == s.next_cell[None, :], axis=1)
-            & ((parent < 0) | (holders != parent))  # never into the pusher's cell: no swap
+            & ((parent < 0) | (cells != here[jnp.maximum(parent, 0)]))  # never into the pusher's cell: no swap
         )
-        best = jnp.min(jnp.where(open_, keys, beyond))
-        found = best < beyond
-        choice = jnp.where(found, best % 8, 0)  # a key's low three bits are its action
-        cell, holder = cells[choice], holders[choice]
+        best = jnp.min(jnp.where(open_, keys, NO_ENTRY))
+        found = best < NO_ENTRY
+        cell = cells[jnp.where(found, best % 8, WAIT)]  # a key's low three bits are its action
+        holder = jnp.max(jnp.where(here == cell, robots, -1))  # own cells are distinct: one at most
         push = found & (holder >= 0) & (holder != i) & undecided[jnp.maximum(holder, 0)]
 
         is_i, is_parent = robots == i, (robots == parent) & ~found
