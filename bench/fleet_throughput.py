@@ -5,8 +5,9 @@ same load on a shared machine), on ``Fleet-12x12-v0`` (FLEET_SPEC.md):
 
 * ``jax random``: ``jax.jit`` of a ``lax.scan`` over time of ``jax.vmap(env.step)``
   (the full step: transition, observation, auto-reset, ``info["final_obs"]``)
-  with uniform random actions in ``0..4``, one key per env per step
-  (``jax.random.split``), everything a learner reads (``obs``, ``final_obs``,
+  with uniform random actions in ``0..4`` (a random word per robot modulo 5) and one key per env
+  per step, drawn for the whole call at its start inside the timed program (see ``jax_program``),
+  everything a learner reads (``obs``, ``final_obs``,
   reward, truncation) summed into a checksum so nothing is dropped;
 * ``jax core``: the transition alone (:func:`wrl_jax.envs.fleet.env.fleet_transition`
   with its task draw; no observation, no reset), to show what the observation costs;
@@ -86,6 +87,7 @@ from jax.sharding import Mesh, NamedSharding  # noqa: E402
 from jax.sharding import PartitionSpec as P  # noqa: E402
 
 from wrl_jax.core.observation import observation_size  # noqa: E402
+from wrl_jax.core.random import random_words, split_keys  # noqa: E402
 from wrl_jax.core.registry import make  # noqa: E402
 from wrl_jax.envs.fleet import metrics, planners  # noqa: E402
 from wrl_jax.envs.fleet.env import draw_tasks, fleet_transition  # noqa: E402
@@ -115,24 +117,31 @@ def jax_program(env: Any, batch: int, horizon: int, mode: str) -> Callable:
     update = jax.vmap(planners.next_priorities)
 
     def run(params, carry):
-        def one_step(carry, _):
-            state, prio, key, checksum = carry
-            key, action_key, env_key = jax.random.split(key, 3)
-            keys = jax.random.split(env_key, batch)
+        state, prio, key, checksum = carry
+        # The call's random draws up front, from the unrolled threefry of wrl_jax.core.random (jax.random's bits;
+        # jax.random runs threefry as a CPU loop, which cost a quarter of the step), scanned over: drawn inside the
+        # step, XLA fuses the hash into every fusion that reads an action or a key, and recomputes it there.
+        key, action_key, env_key = split_keys(key, 3)
+        keys = split_keys(env_key, horizon * batch).reshape(horizon, batch)
+        actions = (random_words(action_key, horizon * batch * num_robots) % 5).astype(jnp.int32)
+        actions = actions.reshape(horizon, batch, num_robots)
+
+        def one_step(carry, inputs):
+            state, prio, checksum = carry
+            keys, action = inputs
             if mode == "pibt":
                 action = plan("pibt", prio, state, params)
-            else:
-                action = jax.random.randint(action_key, (batch, num_robots), 0, 5, dtype=jnp.int32)
             if mode == "core":
                 state, reward, truncated, _ = core(state, action, draw(keys, params, num_robots), params)
-                return (state, prio, key, checksum + jnp.sum(reward)), None
+                return (state, prio, checksum + jnp.sum(reward)), None
             obs, state, reward, _, truncated, info = step(keys, state, action, params)
             if mode == "pibt":
                 prio = update(prio, info, truncated)
             checksum = checksum + jnp.sum(obs) + jnp.sum(info["final_obs"]) + jnp.sum(reward) + jnp.sum(truncated)
-            return (state, prio, key, checksum), None
+            return (state, prio, checksum), None
 
-        return jax.lax.scan(one_step, carry, None, length=horizon)[0]
+        state, prio, checksum = jax.lax.scan(one_step, (state, prio, checksum), (keys, actions))[0]
+        return state, prio, key, checksum
 
     return run
 
