@@ -23,6 +23,8 @@ case once, interleaved, median reported. ``--baseline FILE`` adds the same cases
 for it to import), so a before/after ratio is measured in one process. Run from the repository root::
 
     .venv/bin/python bench/fleet_step_profile.py --robots 8 --batch 8192 --parts step core obs
+    .venv/bin/python bench/fleet_step_profile.py --robots 8 --batch 8192 --devices 8 --parts step obs \
+        --baseline /tmp/env_before.py --baseline-obs /tmp/obs_before.py   # files from `git show COMMIT:PATH`
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import os
 import statistics
 import sys
 import time
@@ -40,12 +43,24 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-import jax
-import jax.numpy as jnp
+if __name__ == "__main__":
+    # --devices N splits the CPU into N XLA host devices, which XLA reads once, when JAX starts (as in
+    # bench/fleet_throughput.py: wrl_jax/cli/machine.py by its path, since the package would start JAX).
+    _spec = importlib.util.spec_from_file_location("_wrl_jax_machine", ROOT / "wrl_jax" / "cli" / "machine.py")
+    _machine = importlib.util.module_from_spec(_spec)
+    _spec.loader.exec_module(_machine)
+    os.environ["XLA_FLAGS"] = _machine.xla_flags_with_host_devices(
+        os.environ.get("XLA_FLAGS", ""), _machine.int_option_from_argv(sys.argv[1:], "--devices", 1))
 
-import wrl_jax.envs  # noqa: F401  (registers the names)
-from wrl_jax.core.registry import make
-from wrl_jax.envs.fleet import env as current_module
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+from jax.sharding import Mesh, NamedSharding  # noqa: E402
+from jax.sharding import PartitionSpec as P  # noqa: E402
+
+import wrl_jax.envs  # noqa: E402, F401  (registers the names)
+from wrl_jax.core.registry import make  # noqa: E402
+from wrl_jax.envs.fleet import env as current_module  # noqa: E402
 
 PARTS = ("step", "transition", "core", "obs", "conflicts", "draw", "reset")
 
@@ -108,8 +123,12 @@ def one_env(module, env, part: str):
     return fn
 
 
-def build(module, env, params, part: str, batch: int, horizon: int, seed: int):
-    """Compile one case; returns ``(compiled, args, compile_s)``; the carry of ``args`` is updated per call."""
+def build(module, env, params, part: str, batch: int, horizon: int, seed: int, devices: int = 1):
+    """Compile one case; returns ``(compiled, args, compile_s)``; the carry of ``args`` is updated per call.
+
+    With ``devices > 1`` the batch is split over the first ``devices`` XLA devices (``shard_map``, each
+    device the one-device program on its share, nothing communicated), as bench/fleet_throughput.py does.
+    """
     step = jax.vmap(one_env(module, env, part), in_axes=(0, 0, 0, 0, None))
 
     def run(params, state, obs, keys, actions):
@@ -127,8 +146,28 @@ def build(module, env, params, part: str, batch: int, horizon: int, seed: int):
     state = state.replace(time=state.time + (int(params.max_steps) - horizon // 2) % int(params.max_steps))
     keys = jax.random.split(key_keys, horizon * batch).reshape(horizon, batch)
     actions = jax.random.randint(key_actions, (horizon, batch, env.num_robots), 0, 5, dtype=jnp.int32)
+    program = run
+    if devices > 1:
+        if batch % devices:
+            raise ValueError(f"batch {batch} does not split over {devices} devices")
+        mesh = Mesh(np.array(jax.devices()[:devices]), ("envs",))
+
+        def per_device(params, state, obs, keys, actions):
+            state, obs, total = run(params, state, obs, keys, actions)
+            return state, obs, total[None]
+
+        sharded = jax.shard_map(per_device, mesh=mesh, in_specs=(P(), P("envs"), P("envs"), P(None, "envs"),
+                                                                 P(None, "envs")),
+                                out_specs=(P("envs"), P("envs"), P("envs")), check_vma=False)
+
+        def program(params, state, obs, keys, actions):
+            state, obs, totals = sharded(params, state, obs, keys, actions)
+            return state, obs, jnp.sum(totals)
+
+        state, obs = jax.device_put((state, obs), NamedSharding(mesh, P("envs")))
+        keys, actions = jax.device_put((keys, actions), NamedSharding(mesh, P(None, "envs")))
     start = time.perf_counter()
-    compiled = jax.jit(run, donate_argnums=(1, 2)).lower(params, state, obs, keys, actions).compile()
+    compiled = jax.jit(program, donate_argnums=(1, 2)).lower(params, state, obs, keys, actions).compile()
     return compiled, [params, state, obs, keys, actions], time.perf_counter() - start
 
 
@@ -142,6 +181,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--baseline", default=None, help="an older copy of wrl_jax/envs/fleet/env.py")
     parser.add_argument("--baseline-obs", default=None, help="the observation.py that baseline imports")
     parser.add_argument("--no-current", action="store_true", help="time the baseline only")
+    parser.add_argument("--devices", type=int, default=1,
+                        help="split the CPU into this many XLA host devices and each batch over them")
     args = parser.parse_args(argv)
 
     impls = {} if args.no_current else {"current": current_module}
@@ -155,7 +196,8 @@ def main(argv: list[str] | None = None) -> int:
                 impl_env = env if module is current_module else module.Fleet(params, env.view_radius, env.name)
                 for part in args.parts:
                     label = (name, num_robots, batch, part)
-                    cases[label] = build(module, impl_env, params, part, batch, args.horizon, seed=0)
+                    cases[label] = build(module, impl_env, params, part, batch, args.horizon, seed=0,
+                                         devices=args.devices)
                     compiled, call_args, _ = cases[label]
                     call_args[1:3] = jax.block_until_ready(compiled(*call_args))[:2]  # warm-up
                     print(f"compiled {label} in {cases[label][2]:.1f} s", file=sys.stderr, flush=True)
@@ -186,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
                     r[k] == row[k] for k in ("robots", "batch", "part")))
                 print(f"ratio current/baseline K={row['robots']} B={row['batch']:6d} {row['part']:10s} "
                       f"x{base['median_s'] / row['median_s']:.2f}")
-    print(json.dumps({"horizon": args.horizon, "repeats": args.repeats, "rows": rows}))
+    print(json.dumps({"horizon": args.horizon, "repeats": args.repeats, "devices": args.devices, "rows": rows}))
     return 0
 
 

@@ -10,9 +10,14 @@ states recorded from PIBT shifts (the planner-alone states of ``bench/fleet_thro
   the planners' XLA options (``planners.compiler_options()``), and the whole planner again with XLA's
   default options.
 
+``--baseline FILE`` (an older copy of ``wrl_jax/envs/fleet/planners.py``) adds the whole planner of that
+file on the same states, timed interleaved with the current one, its moves checked equal, and the ratio.
+
 Run from the repository root::
 
     .venv/bin/python bench/pibt_profile.py --robots 4 8 --batch 4096
+    git show 37682ab:wrl_jax/envs/fleet/planners.py > /tmp/planners_before.py
+    .venv/bin/python bench/pibt_profile.py --robots 8 --batch 32768 --baseline /tmp/planners_before.py
 """
 
 from __future__ import annotations
@@ -42,7 +47,17 @@ def _median_seconds(fns, args, repeats: int) -> list[float]:
     return [statistics.median(mine) for mine in times]
 
 
-def profile(num_robots: int, batch: int, repeats: int) -> dict:
+def load_planners(path: str):
+    """An older ``planners.py`` as a module (it imports only JAX, flax and the package's grid and types)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("pibt_profile_baseline_planners", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def profile(num_robots: int, batch: int, repeats: int, baseline: str | None = None) -> dict:
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -85,8 +100,19 @@ def profile(num_robots: int, batch: int, repeats: int) -> dict:
     whole = jax.jit(jax.vmap(lambda p, s: planners.plan("pibt", p, s, params)), compiler_options=options)
     whole_defaults = jax.jit(jax.vmap(lambda p, s: planners.plan("pibt", p, s, params)))
     before = jax.jit(jax.vmap(before_loop), compiler_options=options)
-    whole_s, defaults_s, before_s = _median_seconds([whole, whole_defaults, before], (prio, state), repeats)
-    return {
+    fns = [whole, whole_defaults, before]
+    if baseline:
+        old = load_planners(baseline)
+        old_whole = jax.jit(jax.vmap(lambda p, s: old.plan("pibt", old.PibtState(age=p.age, tiebreak=p.tiebreak), s,
+                                                            params)), compiler_options=options)
+        if not np.array_equal(np.asarray(old_whole(prio, state)), np.asarray(whole(prio, state))):
+            raise AssertionError(f"{baseline} plans other moves than the current PIBT")
+        fns.append(old_whole)
+    times = _median_seconds(fns, (prio, state), repeats)
+    whole_s, defaults_s, before_s = times[:3]
+    extra = {"baseline": baseline, "baseline_planner_ms": times[3] * 1e3,
+             "current_vs_baseline": times[3] / whole_s} if baseline else {}
+    return {**extra,
         "num_robots": num_robots, "batch": batch,
         "iterations_mean": float(iterations.mean()), "iterations_max": int(iterations.max()),
         "iterations_p50_p90_p99": [float(x) for x in np.percentile(iterations, [50, 90, 99])],
@@ -102,13 +128,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--batch", type=int, default=4096)
     parser.add_argument("--repeats", type=int, default=9)
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--baseline", default=None, help="an older copy of wrl_jax/envs/fleet/planners.py")
     args = parser.parse_args(argv)
-    rows = [profile(k, args.batch, args.repeats) for k in args.robots]
+    rows = [profile(k, args.batch, args.repeats, args.baseline) for k in args.robots]
     for row in rows:
         print(f"K={row['num_robots']} batch={row['batch']}: loop iterations mean {row['iterations_mean']:.2f}, "
               f"max {row['iterations_max']}; planner {row['planner_ms']:.2f} ms, before the loop "
               f"{row['before_loop_ms']:.2f} ms; {row['robot_decisions_per_s'] / 1e6:.2f} M decisions/s "
-              f"(with XLA's default options {row['planner_ms_xla_defaults']:.2f} ms)")
+              f"(with XLA's default options {row['planner_ms_xla_defaults']:.2f} ms)"
+              + (f"; baseline {row['baseline_planner_ms']:.2f} ms, current {row['current_vs_baseline']:.2f}x faster, "
+                 f"same moves" if args.baseline else ""))
     if args.json:
         args.json.write_text(json.dumps({"rows": rows, "command": " ".join(sys.argv)}, indent=2))
     return 0
