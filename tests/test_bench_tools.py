@@ -1,0 +1,48 @@
+"""The fleet speed tools of ``bench/`` run and compare what they say they compare (tiny sizes: a smoke test).
+
+``fleet_step_profile.py --devices N`` splits the batch over N host devices (the split the throughput aims
+are measured in) and, with ``--baseline``, times an older copy of the env beside the current one;
+``pibt_profile.py --baseline`` times an older planners.py and refuses one that plans other moves.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_tool(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=300)
+
+
+def test_step_profile_splits_over_devices_and_times_a_baseline():
+    done = run_tool("bench/fleet_step_profile.py", "--robots", "2", "--batch", "16", "--devices", "2", "--horizon",
+                    "4", "--repeats", "1", "--parts", "core", "obs", "--baseline", "wrl_jax/envs/fleet/env.py")
+    assert done.returncode == 0, done.stderr
+    report = json.loads(done.stdout.strip().splitlines()[-1])
+    assert report["devices"] == 2
+    rows = {(row["impl"], row["part"]): row for row in report["rows"]}
+    assert set(rows) == {(impl, part) for impl in ("current", "baseline") for part in ("core", "obs")}
+    for part in ("core", "obs"):  # the same program on the same inputs: the same checksum
+        assert rows[("current", part)]["checksum"] == rows[("baseline", part)]["checksum"]
+    assert "ratio current/baseline" in done.stdout
+
+
+def test_pibt_profile_refuses_a_baseline_that_plans_other_moves(tmp_path):
+    source = (ROOT / "wrl_jax/envs/fleet/planners.py").read_text()
+    same = tmp_path / "same.py"
+    same.write_text(source)
+    done = run_tool("bench/pibt_profile.py", "--robots", "2", "--batch", "32", "--repeats", "1", "--baseline", str(same))
+    assert done.returncode == 0, done.stderr
+    assert "same moves" in done.stdout
+    other = tmp_path / "other.py"  # a planner that always waits
+    other.write_text(source.replace("    return pibt_choices(candidate_ids(pos, size), cand_dist, priority)",
+                                    "    return jnp.full(pos.shape[0], WAIT, dtype=jnp.int32)"))
+    assert other.read_text() != source
+    done = run_tool("bench/pibt_profile.py", "--robots", "2", "--batch", "32", "--repeats", "1", "--baseline", str(other))
+    assert done.returncode != 0
+    assert "plans other moves" in done.stderr
