@@ -186,12 +186,12 @@ def expand_observations(scalars: jax.Array, masks: jax.Array, view_radius: int) 
     The scalars are copied and followed by the window columns. Window column ``c`` (channel ``k``,
     cell ``w``) is 1.0 where ``masks[..., k]`` has bit ``w`` set. Each window column reads every
     channel's mask ANDed with a constant, ``1 << w`` in the column's own channel and 0 in the others,
-    and ORs the results: the same three (or four) integer ops and one compare for every column, no
+    and ORs the results: one AND per channel, the ORs and one compare for every column, no
     per-column choice of channel. XLA's CPU loop emitter turns that into a few vector instructions
-    per 16 columns with the constants as memory operands; a chain of ``where``\s on the column's
-    channel compiled to byte-mask conversions and blends per select and expanded observations at
-    about half the speed (``bench/fleet_step_profile.py``; docs/fleet_planners.md "Speed"). The
-    expression is elementwise, so XLA fuses it into whatever consumes the observation.
+    per 8 or 16 columns with the constants as memory operands; the chain of ``where`` calls on the
+    column's channel it replaced compiled to a byte-mask conversion and a blend per select, and the
+    observation ran 1.38x slower (``bench/fleet_step_profile.py --parts obs``; docs/fleet_planners.md
+    "Speed"). The expression is elementwise, so XLA fuses it into whatever consumes the observation.
     ``C`` is the masks' channel count (3, or 4 with the priority channel, 5 with headings too).
     """
     cells = window_size(view_radius) ** 2

@@ -94,4 +94,3 @@ def split_keys(key: jax.Array, count: int) -> jax.Array:
         return jax.random.split(key, count)
     x0, x1 = threefry2x32(data[0], data[1], np.uint32(0), jnp.arange(count, dtype=jnp.uint32))
     return jax.random.wrap_key_data(jnp.stack([x0, x1], axis=-1), impl="threefry2x32")
-
