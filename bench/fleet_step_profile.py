@@ -10,12 +10,19 @@ timed program is the step alone; every output is summed into a checksum so nothi
 Parts (``--parts``):
 
 * ``step``: ``env.step`` (transition, observation, auto-reset, ``final_obs``, every flag);
+* ``read``: ``env.step`` read as ``bench/fleet_throughput.py`` reads it (``obs``, ``final_obs``, reward,
+  truncation, each summed over the whole batch, the observation not carried to the next step), so XLA
+  drops the rest (the flags, ``final_global_state``) and fuses the sums as in that bench (per-fleet sums
+  inside ``vmap``, or an observation carried in the loop, fuse differently);
 * ``transition``: ``env.transition`` (the core plus the observation of the reached state, no reset);
 * ``core``: ``fleet_transition`` with its task draw (no observation, no reset);
 * ``obs``: ``fleet_observation`` alone, of a state moved cheaply every step (all robots shifted alike);
 * ``conflicts``: ``propose`` and ``resolve_conflicts`` alone (positions carried);
 * ``draw``: the step's key split and both task draws (transition and auto-reset);
 * ``reset``: ``reset_env`` and the select of state and observation against a carried observation.
+
+``--trace`` then runs each case under ``jax.profiler`` and prints its top fusions by share of the
+traced time (``bench/xla_trace.py``): where the time goes inside the fused program.
 
 Compile time (``lower`` + ``compile``) is reported apart; then ``--repeats`` rounds, each timing every
 case once, interleaved, median reported. ``--baseline FILE`` adds the same cases for an older copy of
@@ -62,7 +69,7 @@ import wrl_jax.envs  # noqa: E402, F401  (registers the names)
 from wrl_jax.core.registry import make  # noqa: E402
 from wrl_jax.envs.fleet import env as current_module  # noqa: E402
 
-PARTS = ("step", "transition", "core", "obs", "conflicts", "draw", "reset")
+PARTS = ("step", "read", "transition", "core", "obs", "conflicts", "draw", "reset")
 
 
 def load_baseline(env_file: str, obs_file: str | None) -> types.ModuleType:
@@ -91,6 +98,9 @@ def one_env(module, env, part: str):
         if part == "step":
             obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
             return state, obs, checksum((obs, reward, terminated, truncated, info))
+        if part == "read":  # as bench/fleet_throughput.py reads the step: summed over the batch, obs not carried
+            seen, state, reward, terminated, truncated, info = env.step(key, state, action, params)
+            return state, obs, (seen, info["final_obs"], reward, truncated)
         if part == "transition":
             obs, state, reward, terminated, truncated, info = env.transition(key, state, action, params)
             return state, obs, checksum((obs, reward, terminated, truncated, info))
@@ -135,7 +145,7 @@ def build(module, env, params, part: str, batch: int, horizon: int, seed: int, d
         def body(carry, xs):
             state, obs, total = carry
             state, obs, value = step(state, obs, xs[0], xs[1], params)
-            return (state, obs, total + jnp.sum(value)), None
+            return (state, obs, total + checksum(value)), None
 
         (state, obs, total), _ = jax.lax.scan(body, (state, obs, jnp.float32(0.0)), (keys, actions))
         return state, obs, total
@@ -183,6 +193,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-current", action="store_true", help="time the baseline only")
     parser.add_argument("--devices", type=int, default=1,
                         help="split the CPU into this many XLA host devices and each batch over them")
+    parser.add_argument("--trace", action="store_true", help="print each case's top fusions (jax.profiler)")
     args = parser.parse_args(argv)
 
     impls = {} if args.no_current else {"current": current_module}
@@ -228,7 +239,22 @@ def main(argv: list[str] | None = None) -> int:
                     r[k] == row[k] for k in ("robots", "batch", "part")))
                 print(f"ratio current/baseline K={row['robots']} B={row['batch']:6d} {row['part']:10s} "
                       f"x{base['median_s'] / row['median_s']:.2f}")
-    print(json.dumps({"horizon": args.horizon, "repeats": args.repeats, "devices": args.devices, "rows": rows}))
+    traces = {}
+    if args.trace:
+        from xla_trace import fusion_shares
+
+        for label, (compiled, call_args, _) in cases.items():
+            def call(compiled=compiled, call_args=call_args):  # state and obs are donated: carry them on
+                out = compiled(*call_args)
+                call_args[1:3] = out[:2]
+                return out
+
+            traces[" ".join(map(str, label))] = shares = fusion_shares(compiled, call)
+            print(f"top fusions of {' '.join(map(str, label))} (share of traced time):")
+            for row in shares:
+                print(f"  {100 * row['share']:5.1f} %  {row['shape']:22s} {row['op']:28s} {row['name']}")
+    print(json.dumps({"horizon": args.horizon, "repeats": args.repeats, "devices": args.devices, "rows": rows,
+                      **({"top_fusions": traces} if traces else {})}))
     return 0
 
 

@@ -39,6 +39,7 @@ steps x robots. Run from the repository root::
 
     .venv/bin/python bench/fleet_throughput.py            # writes bench/results/fleet_throughput.json
     .venv/bin/python bench/fleet_throughput.py --quick    # smoke run
+    .venv/bin/python bench/fleet_throughput.py --robots 8 --batches 8192 --trace   # + the split steps' top fusions
 """
 
 from __future__ import annotations
@@ -197,9 +198,14 @@ class JaxCase:
     def label(self) -> str:
         return f"{self.impl} K={self.num_robots} batch={self.batch}"
 
+    def call(self) -> Any:
+        """One call of the compiled program, the carry carried on."""
+        self.carry = self.fn(self.params, self.carry)
+        return self.carry
+
     def time_once(self) -> None:
         start = time.perf_counter()
-        self.carry = jax.block_until_ready(self.fn(self.params, self.carry))
+        jax.block_until_ready(self.call())
         self.times_s.append(time.perf_counter() - start)
 
     def summary(self) -> dict:
@@ -395,6 +401,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="XLA CPU devices (set before JAX starts) the sharded cases split their batch over; "
                              "1: no sharded cases")
     parser.add_argument("--quick", action="store_true", help="smoke run: K=4, batches 1 and 256, 2 repeats")
+    parser.add_argument("--trace", action="store_true",
+                        help="after timing, trace the split step cases and record their top fusions (bench/xla_trace.py)")
     parser.add_argument("--out", type=Path, default=RESULTS / "fleet_throughput.json")
     args = parser.parse_args(argv)
     if args.quick:
@@ -432,6 +440,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"round {round_ + 1}/{args.repeats} done, load {loads[-1][0]:.1f}", flush=True)
 
     rows = [case.summary() for case in cases]
+    if args.trace:  # where the split steps spend their time, fusion by fusion
+        from xla_trace import fusion_shares
+
+        for case, row in zip(cases, rows):
+            if isinstance(case, JaxCase) and case.devices > 1:
+                row["top_fusions"] = fusion_shares(case.fn, case.call)
+                print(f"top fusions of {case.label} (share of traced time):")
+                for fusion in row["top_fusions"]:
+                    print(f"  {100 * fusion['share']:5.1f} %  {fusion['shape']:22s} {fusion['op']:28s} {fusion['name']}")
     for k, runs in pogema_rows.items():
         ok = [r for r in runs if "error" not in r]
         if ok:

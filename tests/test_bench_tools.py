@@ -2,6 +2,7 @@
 
 ``fleet_step_profile.py --devices N`` splits the batch over N host devices (the split the throughput aims
 are measured in) and, with ``--baseline``, times an older copy of the env beside the current one;
+``--trace`` lists the compiled program's fusions by share of traced time (``bench/xla_trace.py``);
 ``pibt_profile.py --baseline`` times an older planners.py and refuses one that plans other moves.
 """
 
@@ -21,10 +22,14 @@ def run_tool(*args: str) -> subprocess.CompletedProcess:
 
 def test_step_profile_splits_over_devices_and_times_a_baseline():
     done = run_tool("bench/fleet_step_profile.py", "--robots", "2", "--batch", "16", "--devices", "2", "--horizon",
-                    "4", "--repeats", "1", "--parts", "core", "obs", "--baseline", "wrl_jax/envs/fleet/env.py")
+                    "4", "--repeats", "1", "--parts", "core", "obs", "--baseline", "wrl_jax/envs/fleet/env.py",
+                    "--trace")
     assert done.returncode == 0, done.stderr
     report = json.loads(done.stdout.strip().splitlines()[-1])
     assert report["devices"] == 2
+    for fusions in report["top_fusions"].values():  # --trace: the program's own fusions, by share of time
+        assert fusions and all(0 < row["share"] <= 1 and row["name"] for row in fusions)
+        assert sum(row["share"] for row in fusions) <= 1 + 1e-9
     rows = {(row["impl"], row["part"]): row for row in report["rows"]}
     assert set(rows) == {(impl, part) for impl in ("current", "baseline") for part in ("core", "obs")}
     for part in ("core", "obs"):  # the same program on the same inputs: the same checksum
