@@ -39,7 +39,6 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
-import os
 import statistics
 import sys
 import time
@@ -51,13 +50,10 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 if __name__ == "__main__":
-    # --devices N splits the CPU into N XLA host devices, which XLA reads once, when JAX starts (as in
-    # bench/fleet_throughput.py: wrl_jax/cli/machine.py by its path, since the package would start JAX).
-    _spec = importlib.util.spec_from_file_location("_wrl_jax_machine", ROOT / "wrl_jax" / "cli" / "machine.py")
-    _machine = importlib.util.module_from_spec(_spec)
-    _spec.loader.exec_module(_machine)
-    os.environ["XLA_FLAGS"] = _machine.xla_flags_with_host_devices(
-        os.environ.get("XLA_FLAGS", ""), _machine.int_option_from_argv(sys.argv[1:], "--devices", 1))
+    # --devices N splits the CPU into N XLA host devices, which XLA reads once, when JAX starts.
+    from host_split import split_cpu_from_argv
+
+    split_cpu_from_argv(sys.argv[1:], "--devices", 1)
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402

@@ -65,21 +65,12 @@ DEFAULT_HOST_DEVICES = 8
 """XLA CPU devices the bench splits the machine into (``--host-devices``) for its sharded cases."""
 
 
-def load_machine_module():
-    """wrl_jax/cli/machine.py by its path: importing it through the package would start JAX too early."""
-    spec = importlib.util.spec_from_file_location("_wrl_jax_machine", ROOT / "wrl_jax" / "cli" / "machine.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 if __name__ == "__main__":
     # XLA reads XLA_FLAGS once, when JAX starts: split the CPU into --host-devices XLA devices now, so the
     # sharded cases run beside the one-device ones (a one-device program uses the first device only).
-    _machine = load_machine_module()
-    os.environ["XLA_FLAGS"] = _machine.xla_flags_with_host_devices(
-        os.environ.get("XLA_FLAGS", ""), _machine.int_option_from_argv(sys.argv[1:], "--host-devices",
-                                                                       DEFAULT_HOST_DEVICES))
+    from host_split import split_cpu_from_argv
+
+    split_cpu_from_argv(sys.argv[1:], "--host-devices", DEFAULT_HOST_DEVICES)
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
