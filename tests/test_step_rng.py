@@ -88,3 +88,25 @@ def test_split_keys_and_random_words_equal_jax_random(impl):
     keys = jax.random.split(jax.random.key(5, impl=impl), 4)
     assert len({tuple(np.asarray(jax.random.key_data(split_keys(k, 2))).ravel()) for k in keys}) == 4
 
+
+
+def test_words_modulo_equals_integer_remainder():
+    """The division-free remainder of the fleet's task draw, against NumPy's ``%``: every divisor up to
+    4,096, the largest ones it is documented for, on random words, the extremes and words next to
+    multiples of the divisor (where a quotient estimate off by one would show)."""
+    from wrl_jax.core.random import MAX_MODULUS, words_modulo
+
+    rng = np.random.default_rng(7)
+    powers = 2 ** np.arange(12, 24)
+    divisors = np.unique(np.concatenate([np.arange(1, 4097), powers - 1, powers, powers + 1,
+                                         rng.integers(4097, MAX_MODULUS + 1, 500)]))
+    divisors = divisors[divisors <= MAX_MODULUS].astype(np.uint32)
+    edges = np.array([0, 1, 2**24 - 1, 2**24, 2**31 - 1, 2**31, 2**32 - 129, 2**32 - 128, 2**32 - 2, 2**32 - 1],
+                     dtype=np.uint64)
+    words = np.concatenate([rng.integers(0, 2**32, 4000, dtype=np.uint64), edges]).astype(np.uint32)
+    got = np.asarray(jax.jit(jax.vmap(words_modulo, in_axes=(None, 0)))(words, divisors))
+    np.testing.assert_array_equal(got, words[None, :] % divisors[:, None])
+    multiples = rng.integers(0, 2**32, (divisors.size, 16), dtype=np.uint64) // divisors[:, None] * divisors[:, None]
+    near = (np.concatenate([multiples - 1, multiples, multiples + 1], axis=1) % 2**32).astype(np.uint32)
+    got = np.asarray(jax.jit(jax.vmap(words_modulo))(near, divisors))
+    np.testing.assert_array_equal(got, near % divisors[:, None])

@@ -117,25 +117,35 @@ def window_masks(blocked: jax.Array, view_radius: int) -> jax.Array:
     return masks
 
 
-def offset_masks(delta: jax.Array, view_radius: int) -> jax.Array:
-    """``delta (..., 2)`` int32 offsets -> int32 ``1 << w`` of the window cell they fall on, 0 outside the window."""
+def offset_masks(d_row: jax.Array, d_col: jax.Array, view_radius: int) -> jax.Array:
+    """int32 ``1 << w`` of the window cell at offset ``(d_row, d_col)`` from the centre, 0 outside the window.
+
+    The offsets come as two arrays (rows, columns), not as one ``(..., 2)`` array: a trailing axis
+    of 2 is a strided read that XLA's CPU loop emitter does not vectorize.
+    """
     radius = int(view_radius)
     side = window_size(radius)
-    inside = jnp.all(jnp.abs(delta) <= radius, axis=-1)
-    index = jnp.where(inside, (delta[..., 0] + radius) * side + delta[..., 1] + radius, 0)
+    inside = (jnp.abs(d_row) <= radius) & (jnp.abs(d_col) <= radius)
+    index = jnp.where(inside, (d_row + radius) * side + d_col + radius, 0)
     return jnp.where(inside, jnp.left_shift(jnp.int32(1), index), 0)
 
 
-def others_window_bits(pos: jax.Array, cells: jax.Array, view_radius: int) -> jax.Array:
-    """``(K, K)`` int32: ``[i, j]`` is the window bit (:func:`offset_masks`) of robot ``j``'s cell ``cells[j]``
-    in robot ``i``'s window around ``pos[i]``; 0 on the diagonal (a robot does not see itself)."""
-    others = ~np.eye(pos.shape[0], dtype=bool)
-    return jnp.where(others, offset_masks(cells[None, :, :] - pos[:, None, :], view_radius), 0)
+def seen_masks(pos: jax.Array, cells: jax.Array, view_radius: int, keep: np.ndarray) -> jax.Array:
+    """``(K,)`` int32: robot ``i``'s window mask of the cells ``cells[j]`` of the robots ``j`` with ``keep[i, j]``.
 
-
-def or_masks(bits: jax.Array) -> jax.Array:
-    """``(K, K)`` int32 window bits -> ``(K,)`` int32 masks, OR over the second axis."""
-    return jax.lax.reduce(bits, np.int32(0), jax.lax.bitwise_or, (1,))
+    ``pos``, ``cells``: ``(K, 2)`` int32; ``keep``: a static ``(K, K)`` bool array (e.g. ``j != i``: a
+    robot does not see itself). Why ``K`` static terms, one per robot ``j`` and each elementwise
+    over the observers ``i``, and not a ``(K, K)`` table ORed over ``j``: XLA compiles the terms
+    to vector instructions over the batch, while the table's OR became a scalar loop inside the
+    fusion that consumed it; the window masks ran 2x faster (docs/fleet_planners.md "Speed").
+    """
+    rows, cols = pos[:, 0], pos[:, 1]
+    masks = jnp.zeros(pos.shape[:1], dtype=jnp.int32)
+    for j in range(cells.shape[0]):
+        if keep[:, j].any():
+            bits = offset_masks(cells[j, 0] - rows, cells[j, 1] - cols, view_radius)
+            masks = masks | (bits if keep[:, j].all() else jnp.where(keep[:, j], bits, 0))
+    return masks
 
 
 def robot_observation_parts(
@@ -146,22 +156,25 @@ def robot_observation_parts(
     view_radius: int,
     size: int,
     priority: bool = False,
-) -> tuple[jax.Array, jax.Array]:
-    """A compact form of every robot's observation: ``(scalars (K, 5) float32, masks (K, 3) int32)``.
+) -> tuple[jax.Array, tuple[jax.Array, ...]]:
+    """A compact form of every robot's observation: ``(scalars (K, 5) float32, masks)``, ``masks`` three ``(K,)`` int32.
+
+    One array per channel, not a ``(K, 3)`` stack: stacking made XLA interleave the three channel
+    computations element by element (a trailing axis of 3) instead of vectorizing each.
 
     Why: a fleet step needs two observations (the reached one, ``final_obs``, and the auto-reset's)
     and selects between them; selecting 32 bytes per robot and expanding once writes the float32
     observation (320 bytes per robot at ``V = 2``) only where it is an output. The masks hold one
     channel each (bit ``w`` = window cell ``w``): the shelf mask is read from :func:`window_masks`,
-    the robot mask ORs ``1 << w`` over the other robots whose offset lands in the window (``K x K``
-    work, tiny for a fleet), the target mask is one offset. :func:`expand_observations` makes the
+    the robot mask ORs ``1 << w`` over the other robots whose offset lands in the window
+    (:func:`seen_masks`, ``K x K`` work, tiny for a fleet), the target mask is one offset. :func:`expand_observations` makes the
     observation of :func:`robot_observations` from them, bit for bit. Needs :func:`bit_windows_supported`.
 
     Args:
         shelf_masks: ``(K,)`` int32, :func:`window_masks` of the blocked grid read at each robot's cell.
         pos, target: ``(K, 2)`` int32 robot cells and target cells; carrying: ``(K,)`` bool.
         view_radius: ``V`` (static); size: ``N`` of the ``/ (N - 1)`` scaling (static).
-        priority: append a fourth mask (``masks (K, 4)``): the robots of the robot mask with a lower
+        priority: append a fourth mask: the robots of the robot mask with a lower
             index than the observer (those that win a free cell both enter, FLEET_SPEC.md step 3).
     """
     radius = int(view_radius)
@@ -170,21 +183,19 @@ def robot_observation_parts(
     num_robots = pos.shape[0]
     table = jnp.asarray(coordinate_table(size))
     scalars = jnp.concatenate([table[pos], table[target], carrying.astype(jnp.float32)[:, None]], axis=1)
-    seen = others_window_bits(pos, pos, radius)  # [i, j]: j seen by i
-    robot_masks = or_masks(seen)
-    target_masks = offset_masks(target - pos, radius)
+    robot_masks = seen_masks(pos, pos, radius, ~np.eye(num_robots, dtype=bool))  # j seen by i, j != i
+    target_masks = offset_masks(target[:, 0] - pos[:, 0], target[:, 1] - pos[:, 1], radius)
     channels = [shelf_masks, robot_masks, target_masks]
     if priority:
-        lower = np.tri(num_robots, k=-1, dtype=bool)  # [i, j]: j < i
-        channels.append(or_masks(jnp.where(lower, seen, 0)))
-    return scalars, jnp.stack(channels, axis=1)
+        channels.append(seen_masks(pos, pos, radius, np.tri(num_robots, k=-1, dtype=bool)))  # j < i
+    return scalars, tuple(channels)
 
 
-def expand_observations(scalars: jax.Array, masks: jax.Array, view_radius: int) -> jax.Array:
+def expand_observations(scalars: jax.Array, masks: tuple[jax.Array, ...], view_radius: int) -> jax.Array:
     """``(..., 5 + C (2V+1)^2)`` float32 observations from :func:`robot_observation_parts`' compact form.
 
     The scalars are copied and followed by the window columns. Window column ``c`` (channel ``k``,
-    cell ``w``) is 1.0 where ``masks[..., k]`` has bit ``w`` set. Each window column reads every
+    cell ``w``) is 1.0 where ``masks[k]`` (shape ``(...)``) has bit ``w`` set. Each window column reads every
     channel's mask ANDed with a constant, ``1 << w`` in the column's own channel and 0 in the others,
     and ORs the results: one AND per channel, the ORs and one compare for every column, no
     per-column choice of channel. XLA's CPU loop emitter turns that into a few vector instructions
@@ -192,15 +203,15 @@ def expand_observations(scalars: jax.Array, masks: jax.Array, view_radius: int) 
     column's channel it replaced compiled to a byte-mask conversion and a blend per select, and the
     observation ran 1.38x slower (``bench/fleet_step_profile.py --parts obs``; docs/fleet_planners.md
     "Speed"). The expression is elementwise, so XLA fuses it into whatever consumes the observation.
-    ``C`` is the masks' channel count (3, or 4 with the priority channel, 5 with headings too).
+    ``C = len(masks)``, the channel count (3, or 4 with the priority channel, 5 with headings too).
     """
     cells = window_size(view_radius) ** 2
-    num_channels = masks.shape[-1]
+    num_channels = len(masks)
     channel, cell = np.divmod(np.arange(num_channels * cells), cells)
     seen = None
     for index in range(num_channels):
         column_bits = np.where(channel == index, np.left_shift(1, cell), 0).astype(np.int32)
-        term = masks[..., index:index + 1] & column_bits
+        term = masks[index][..., None] & column_bits
         seen = term if seen is None else seen | term
     window = jnp.where(seen != 0, np.float32(1.0), np.float32(0.0))
     return jnp.concatenate([scalars, window], axis=-1)

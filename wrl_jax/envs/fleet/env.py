@@ -46,14 +46,19 @@ from wrl_jax.core.observation import (
     coordinate_table,
     expand_observations,
     observation_size,
-    or_masks,
-    others_window_bits,
     robot_observation_parts,
     robot_observations,
+    seen_masks,
     window_masks,
     window_size,
 )
-from wrl_jax.core.random import random_words, split_key, threefry2x32, threefry_key_data  # noqa: F401 (re-exported)
+from wrl_jax.core.random import (  # noqa: F401 (threefry re-exported)
+    random_words,
+    split_key,
+    threefry2x32,
+    threefry_key_data,
+    words_modulo,
+)
 from wrl_jax.envs.fleet.types import FleetParams, FleetState, FleetTasks
 
 NUM_ACTIONS = 5
@@ -73,14 +78,15 @@ def draw_tasks(key: jax.Array, params: FleetParams, num_robots: int) -> FleetTas
 
     ``jax.random.bits(key, (2, K), uint32)`` (computed by :func:`random_words`,
     the same bits), reduced modulo ``num_items`` (row 0) and ``num_stations``
-    (row 1). The modulo bias is below ``n / 2**32`` (< 1.5e-8 for the 62 item
-    markers), far under any sampling noise, and the program is a third of
+    (row 1) (:func:`~wrl_jax.core.random.words_modulo`: the remainder without
+    integer division). The modulo bias is below ``n / 2**32`` (< 1.5e-8 for the
+    62 item markers), far under any sampling noise, and the program is a third of
     ``jax.random.randint``'s, which matters since ``step`` draws twice per
     transition (the tasks and the auto-reset's).
     """
     words = random_words(key, 2 * num_robots).reshape(2, num_robots)
     bounds = jnp.stack([params.num_items, params.num_stations]).astype(jnp.uint32)[:, None]
-    drawn = words % bounds
+    drawn = words_modulo(words, bounds)
     return FleetTasks(item=drawn[0].astype(jnp.int32), station=drawn[1].astype(jnp.int32))
 
 
@@ -300,8 +306,8 @@ def fleet_observation(state: FleetState, params: FleetParams, view_radius: int, 
 
 
 def observation_parts(state: FleetState, params: FleetParams, view_radius: int,
-                      priority: bool = False, headings: bool = False) -> tuple[jax.Array, jax.Array]:
-    """The observations' compact form ``(scalars (K, 5), masks (K, 3 to 5))`` (``V <= 2``; see
+                      priority: bool = False, headings: bool = False) -> tuple[jax.Array, tuple[jax.Array, ...]]:
+    """The observations' compact form ``(scalars (K, 5), masks)``, 3 to 5 ``(K,)`` int32 masks (``V <= 2``; see
     ``robot_observation_parts``; ``headings`` appends :func:`heading_masks`).
 
     The shelf masks come from a table of the layout (:func:`~wrl_jax.core.observation.window_masks`),
@@ -312,7 +318,7 @@ def observation_parts(state: FleetState, params: FleetParams, view_radius: int,
     masks = window_masks(params.shelves, view_radius).reshape(-1)[state.pos[:, 0] * size + state.pos[:, 1]]
     scalars, masks = robot_observation_parts(masks, state.pos, target, state.carrying, view_radius, size, priority)
     if headings:
-        masks = jnp.concatenate([masks, heading_masks(state.pos, state.last_action, view_radius)[:, None]], axis=1)
+        masks = (*masks, heading_masks(state.pos, state.last_action, view_radius))
     return scalars, masks
 
 
@@ -326,7 +332,7 @@ def heading_masks(pos: jax.Array, last_action: jax.Array, view_radius: int) -> j
     In aisles robots mostly keep going, so the repeated move is a cheap guess of the next cell.
     """
     ahead = pos + jnp.asarray(MOVES_WITH_WAIT)[jnp.where(last_action < 0, WAIT, last_action)]
-    return or_masks(others_window_bits(pos, ahead, view_radius))
+    return seen_masks(pos, ahead, view_radius, ~np.eye(pos.shape[0], dtype=bool))
 
 
 def global_state(state: FleetState, params: FleetParams) -> jax.Array:
