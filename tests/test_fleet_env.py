@@ -580,8 +580,9 @@ def test_mask_rounds_equal_the_table_rounds(num_robots):
     pos, proposal = jnp.asarray(np.array(pos), jnp.int32), jnp.asarray(np.array(proposal), jnp.int32)
 
     def both(pos, proposal):
-        same_q, onto = fleet_env._same(proposal, proposal), fleet_env._same(proposal, pos)
-        swap = onto & fleet_env._same(pos, proposal)
+        row, col, q_row, q_col = pos[:, 0], pos[:, 1], proposal[:, 0], proposal[:, 1]
+        same_q, onto = fleet_env._same(q_row, q_col, q_row, q_col), fleet_env._same(q_row, q_col, row, col)
+        swap = onto & fleet_env._same(row, col, q_row, q_col)
         movers = jnp.any(proposal != pos, axis=1)
         lower = np.arange(num_robots)[None, :] < np.arange(num_robots)[:, None]
         return (fleet_env._mover_rounds(movers, same_q, onto, swap),

@@ -130,20 +130,27 @@ def target_distances(pos: jax.Array, state: FleetState, params: FleetParams) -> 
 
 
 def propose(pos: jax.Array, action: jax.Array, shelves: jax.Array):
-    """Step 1: proposals ``q (K, 2)`` and the ``wall_bump``, ``shelf_hit`` flags.
+    """Step 1: proposals ``q (K, 2)`` and the ``wall_bump``, ``shelf_hit`` flags (see :func:`propose_cells`)."""
+    q_row, q_col, wall_bump, shelf_hit = propose_cells(pos[:, 0], pos[:, 1], action, shelves)
+    return jnp.stack([q_row, q_col], axis=-1), wall_bump, shelf_hit
+
+
+def propose_cells(row: jax.Array, col: jax.Array, action: jax.Array, shelves: jax.Array):
+    """Step 1 on rows and columns apart: ``(q_row, q_col, wall_bump, shelf_hit)``, each ``(K,)``.
 
     The move is arithmetic on the action (no table gather); inside ``jit``, where actions are not
     checked, anything outside ``0..3`` waits. The shelf test is one scalar gather from the flat grid.
+    Rows and columns travel apart through the transition: a trailing axis of 2 is a strided access
+    in every fusion that touches it.
     """
     size = shelves.shape[0]
-    d_row = (action == 1).astype(jnp.int32) - (action == 0).astype(jnp.int32)
-    d_col = (action == 3).astype(jnp.int32) - (action == 2).astype(jnp.int32)
-    moved = pos + jnp.stack([d_row, d_col], axis=-1)
-    wall_bump = jnp.any((moved < 0) | (moved >= size), axis=1)
-    inside = jnp.clip(moved, 0, size - 1)
-    shelf_hit = ~wall_bump & shelves.reshape(-1)[inside[:, 0] * size + inside[:, 1]]
-    proposal = jnp.where((wall_bump | shelf_hit)[:, None], pos, moved)
-    return proposal, wall_bump, shelf_hit
+    moved_row = row + (action == 1).astype(jnp.int32) - (action == 0).astype(jnp.int32)
+    moved_col = col + (action == 3).astype(jnp.int32) - (action == 2).astype(jnp.int32)
+    wall_bump = (moved_row < 0) | (moved_row >= size) | (moved_col < 0) | (moved_col >= size)
+    inside_row, inside_col = jnp.clip(moved_row, 0, size - 1), jnp.clip(moved_col, 0, size - 1)
+    shelf_hit = ~wall_bump & shelves.reshape(-1)[inside_row * size + inside_col]
+    stay = wall_bump | shelf_hit
+    return jnp.where(stay, row, moved_row), jnp.where(stay, col, moved_col), wall_bump, shelf_hit
 
 
 MAX_MASK_ROBOTS = 31
@@ -151,7 +158,13 @@ MAX_MASK_ROBOTS = 31
 
 
 def resolve_conflicts(pos: jax.Array, proposal: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Steps 2-4: the robots' next cells ``(K, 2)`` and ``robot_block (K,)``.
+    """Steps 2-4: the robots' next cells ``(K, 2)`` and ``robot_block (K,)`` (see :func:`resolve_cells`)."""
+    row, col, robot_block = resolve_cells(pos[:, 0], pos[:, 1], proposal[:, 0], proposal[:, 1])
+    return jnp.stack([row, col], axis=-1), robot_block
+
+
+def resolve_cells(row: jax.Array, col: jax.Array, q_row: jax.Array, q_col: jax.Array):
+    """Steps 2-4 on rows and columns apart: ``(next_row, next_col, robot_block)``, each ``(K,)``.
 
     A mover ``i`` is blocked when another robot ``j`` will be on ``q_i`` this
     round (``f_j = q_i``) and ``j`` stays or has a lower index, or when a mover
@@ -159,16 +172,16 @@ def resolve_conflicts(pos: jax.Array, proposal: jax.Array) -> tuple[jax.Array, j
     mover set at once; the rounds end with the first one that blocks nobody.
     ``robot_block`` is then exactly the movers that left the set.
     """
-    same_q = _same(proposal, proposal)  # [i, j]: q_i = q_j
-    onto = _same(proposal, pos)  # [i, j]: q_i = pos_j
-    swap = onto & _same(pos, proposal)  # [i, j]: q_i = pos_j and pos_i = q_j
-    movers = jnp.any(proposal != pos, axis=1)
+    same_q = _same(q_row, q_col, q_row, q_col)  # [i, j]: q_i = q_j
+    onto = _same(q_row, q_col, row, col)  # [i, j]: q_i = pos_j
+    swap = onto & _same(row, col, q_row, q_col)  # [i, j]: q_i = pos_j and pos_i = q_j
+    movers = (q_row != row) | (q_col != col)
     final = _mover_rounds(movers, same_q, onto, swap)
-    return jnp.where(final[:, None], proposal, pos), movers & ~final
+    return jnp.where(final, q_row, row), jnp.where(final, q_col, col), movers & ~final
 
 
-def _same(a: jax.Array, b: jax.Array) -> jax.Array:
-    return jnp.all(a[:, None, :] == b[None, :, :], axis=-1)  # [i, j]: a_i == b_j
+def _same(a_row: jax.Array, a_col: jax.Array, b_row: jax.Array, b_col: jax.Array) -> jax.Array:
+    return (a_row[:, None] == b_row[None, :]) & (a_col[:, None] == b_col[None, :])  # [i, j]: a_i == b_j
 
 
 def _mover_rounds(movers: jax.Array, same_q: jax.Array, onto: jax.Array, swap: jax.Array) -> jax.Array:
@@ -255,8 +268,10 @@ def fleet_transition(state: FleetState, action: jax.Array, tasks: FleetTasks, pa
     """
     size = params.shelves.shape[0]
     action = jnp.asarray(action, dtype=jnp.int32)
-    proposal, wall_bump, shelf_hit = propose(state.pos, action, params.shelves)
-    next_pos, robot_block = resolve_conflicts(state.pos, proposal)
+    row, col = state.pos[:, 0], state.pos[:, 1]
+    q_row, q_col, wall_bump, shelf_hit = propose_cells(row, col, action, params.shelves)
+    next_row, next_col, robot_block = resolve_cells(row, col, q_row, q_col)
+    next_pos = jnp.stack([next_row, next_col], axis=-1)
     target_row = _target_index(state, params)
     target = _target_cells(params)[target_row]
     on_target = jnp.all(next_pos == target, axis=1)
