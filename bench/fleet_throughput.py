@@ -61,8 +61,13 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-DEFAULT_HOST_DEVICES = 8
-"""XLA CPU devices the bench splits the machine into (``--host-devices``) for its sharded cases."""
+DEFAULT_HOST_DEVICES = 16
+"""XLA CPU devices the bench splits the machine into (``--host-devices``) for its sharded cases.
+
+16 on this 2-core machine: three interleaved pairs of K = 8 runs, 16 against 8 devices, ran the
+split random step at 24.9 / 30.3 / 31.0 M against 24.6 / 24.8 / 25.7 M robot-steps/s (and the
+split PIBT step 12.1-14.8 M against 11.5-11.9 M); 32 devices ran slower than 16
+(docs/fleet_planners.md "Speed")."""
 
 
 if __name__ == "__main__":

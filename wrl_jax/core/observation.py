@@ -137,7 +137,11 @@ def seen_masks(pos: jax.Array, cells: jax.Array, view_radius: int, keep: np.ndar
     robot does not see itself). Why ``K`` static terms, one per robot ``j`` and each elementwise
     over the observers ``i``, and not a ``(K, K)`` table ORed over ``j``: XLA compiles the terms
     to vector instructions over the batch, while the table's OR became a scalar loop inside the
-    fusion that consumed it; the window masks ran 2x faster (docs/fleet_planners.md "Speed").
+    fusion that consumed it; the window masks ran 2x faster (docs/fleet_planners.md "Speed"). The
+    terms are cheap elementwise code, so XLA fuses them into their consumer unless the masks are
+    materialized first: the fleet's ``step`` does (they ride in its auto-reset loop), while an
+    observation expanded straight from a state (``reset``, ``get_obs``) recomputes them per window
+    column and runs about 0.85x what the ``(K, K)`` form did.
     """
     rows, cols = pos[:, 0], pos[:, 1]
     masks = jnp.zeros(pos.shape[:1], dtype=jnp.int32)
@@ -157,18 +161,18 @@ def robot_observation_parts(
     size: int,
     priority: bool = False,
 ) -> tuple[jax.Array, tuple[jax.Array, ...]]:
-    """A compact form of every robot's observation: ``(scalars (K, 5) float32, masks)``, ``masks`` three ``(K,)`` int32.
-
-    One array per channel, not a ``(K, 3)`` stack: stacking made XLA interleave the three channel
-    computations element by element (a trailing axis of 3) instead of vectorizing each.
+    """A compact form of every robot's observation: ``(scalars (K, 5) float32, masks)``, three ``(K,)`` int32 masks.
 
     Why: a fleet step needs two observations (the reached one, ``final_obs``, and the auto-reset's)
     and selects between them; selecting 32 bytes per robot and expanding once writes the float32
     observation (320 bytes per robot at ``V = 2``) only where it is an output. The masks hold one
     channel each (bit ``w`` = window cell ``w``): the shelf mask is read from :func:`window_masks`,
     the robot mask ORs ``1 << w`` over the other robots whose offset lands in the window
-    (:func:`seen_masks`, ``K x K`` work, tiny for a fleet), the target mask is one offset. :func:`expand_observations` makes the
-    observation of :func:`robot_observations` from them, bit for bit. Needs :func:`bit_windows_supported`.
+    (:func:`seen_masks`, ``K x K`` work, tiny for a fleet), the target mask is one offset.
+    :func:`expand_observations` makes the observation of :func:`robot_observations` from them, bit
+    for bit. Needs :func:`bit_windows_supported`. A tuple of channels, not a ``(K, 3)`` stack:
+    stacking made XLA interleave the three channels' computations element by element (a trailing
+    axis of 3) instead of vectorizing each.
 
     Args:
         shelf_masks: ``(K,)`` int32, :func:`window_masks` of the blocked grid read at each robot's cell.

@@ -111,8 +111,10 @@ def words_modulo(words: jax.Array, divisor: jax.Array) -> jax.Array:
     Exactness: ``f32(x) * f32(1/d)`` is three roundings from ``x / d`` (relative error just over
     ``3 * 2**-24``), so for ``x < 2**32`` the residual ``x - trunc(...) d`` (computed mod 2**32, read
     as int32) lies in ``(-769, 769 + d)``: an int32, and exact in float32 while ``d <= 2**23``. A
-    second estimate on that residual is off by at most one, which two compares fix. ``tests/test_step_rng.py`` checks every divisor up to 4,096 and powers of two up to
-    ``MAX_MODULUS`` against NumPy on edge and random words.
+    second estimate on that residual is off by at most one, which two compares fix.
+    ``tests/test_step_rng.py`` checks every divisor up to 4,096, powers of two and their neighbours
+    up to ``MAX_MODULUS`` and random ones, against NumPy, on edge and random words and the words
+    next to multiples of the divisor.
     """
     words = jnp.asarray(words, dtype=jnp.uint32)
     divisor = jnp.asarray(divisor, dtype=jnp.uint32)
