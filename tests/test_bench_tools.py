@@ -3,7 +3,8 @@
 ``fleet_step_profile.py --devices N`` splits the batch over N host devices (the split the throughput aims
 are measured in) and, with ``--baseline``, times an older copy of the env beside the current one;
 ``--trace`` lists the compiled program's fusions by share of traced time (``bench/xla_trace.py``);
-``pibt_profile.py --baseline`` times an older planners.py and refuses one that plans other moves.
+``pibt_profile.py --baseline`` times an older planners.py and refuses one that plans other moves;
+``observation_floor.py`` sums exactly the observation-sized arrays it writes.
 """
 
 from __future__ import annotations
@@ -51,3 +52,22 @@ def test_pibt_profile_refuses_a_baseline_that_plans_other_moves(tmp_path):
     done = run_tool("bench/pibt_profile.py", "--robots", "2", "--batch", "32", "--repeats", "1", "--baseline", str(other))
     assert done.returncode != 0
     assert "plans other moves" in done.stderr
+
+
+def test_observation_floor_sums_what_it_writes_and_splits_over_devices():
+    """``bench/observation_floor.py``: the written arrays are summed exactly (checked against NumPy in this
+    process, one device) and the command line splits the batch over host devices."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    import numpy as np
+
+    from observation_floor import floor_program
+
+    batch, robots, width, horizon = 4, 3, 5, 6
+    total = float(floor_program(batch, robots, width, horizon, devices=1)(np.arange(1))[0])
+    base = np.broadcast_to(np.arange(width), (batch, robots, width))
+    expected = sum(float((base + t).sum() + (base - t).sum()) for t in range(horizon))
+    assert total == expected
+    done = run_tool("bench/observation_floor.py", "--batch", "8", "--devices", "2", "--horizon", "2", "--repeats", "1")
+    assert done.returncode == 0, done.stderr
+    rows = json.loads(done.stdout.strip().splitlines()[-1])
+    assert rows[0]["devices"] == 2 and rows[0]["robot_steps_per_s"] > 0
