@@ -14,8 +14,9 @@ import wrl_jax.envs  # noqa: F401  (registers the built-in names)
 from wrl_jax.core import registry
 from wrl_jax.core.grid import MOVES_WITH_WAIT, UNREACHABLE
 from wrl_jax.core.observation import observation_size
-from wrl_jax.envs.fleet import maps
+from wrl_jax.envs.fleet import conflicts as fleet_conflicts
 from wrl_jax.envs.fleet import env as fleet_env
+from wrl_jax.envs.fleet import maps
 from wrl_jax.envs.fleet.env import FleetTasks, draw_tasks, targets
 from wrl_jax.envs.fleet.layout import parse_fleet
 from wrl_jax.envs.fleet.reference import REWARD_NAMES, FleetReference, RefState
@@ -581,12 +582,12 @@ def test_mask_rounds_equal_the_table_rounds(num_robots):
 
     def both(pos, proposal):
         row, col, q_row, q_col = pos[:, 0], pos[:, 1], proposal[:, 0], proposal[:, 1]
-        same_q, onto = fleet_env._same(q_row, q_col, q_row, q_col), fleet_env._same(q_row, q_col, row, col)
-        swap = onto & fleet_env._same(row, col, q_row, q_col)
+        same_q, onto = fleet_conflicts._same(q_row, q_col, q_row, q_col), fleet_conflicts._same(q_row, q_col, row, col)
+        swap = onto & fleet_conflicts._same(row, col, q_row, q_col)
         movers = jnp.any(proposal != pos, axis=1)
         lower = np.arange(num_robots)[None, :] < np.arange(num_robots)[:, None]
-        return (fleet_env._mover_rounds(movers, same_q, onto, swap),
-                fleet_env._mover_rounds_tables(movers, same_q & lower, onto, swap))
+        return (fleet_conflicts._mover_rounds(movers, same_q, onto, swap),
+                fleet_conflicts._mover_rounds_tables(movers, same_q & lower, onto, swap))
 
     masks, tables = jax.device_get(jax.jit(jax.vmap(both))(pos, proposal))
     np.testing.assert_array_equal(masks, tables)
