@@ -1,21 +1,29 @@
 # Two commands on a fresh machine: `make run` trains, `make test` tests.
+# Both install from the lock in requirements/ (every package pinned with its hashes, for CPython
+# 3.11 on Linux x86-64), so what installs today installs tomorrow; `make lock` refreshes it.
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
+PIP    := $(PY) -m pip --disable-pip-version-check
+# Installs resolve nothing: each lock is the whole set, taken as it is (--no-deps) and checked by hash.
+LOCKED := install --quiet --require-hashes --no-deps
 
-.PHONY: run test install install-test clean
+.PHONY: run test install install-test lock clean
 
 # The package and its core dependencies: enough to train, evaluate and render.
-$(VENV)/.installed: pyproject.toml
+$(VENV)/.installed: pyproject.toml requirements/core.txt
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e .
+	$(PIP) $(LOCKED) -r requirements/core.txt
+	$(PIP) install --quiet --no-deps --no-build-isolation -e .
+	$(PIP) check
 	touch $@
 
-# Test extras on top: pytest, notebooks, and Stable-Baselines3 (its adapter test
-# trains SB3's PPO on our Gymnasium environment; torch is the CPU build).
-$(VENV)/.installed-test: $(VENV)/.installed
-	$(PY) -m pip install --quiet -e ".[dev,notebooks,sb3]"
+# Test extras on top (the same versions of everything core has): pytest, notebooks, and
+# Stable-Baselines3 (its adapter test trains SB3's PPO on our Gymnasium environment; torch is
+# the CPU build, found through pip's find-links; see docs/install.md).
+$(VENV)/.installed-test: $(VENV)/.installed requirements/test.txt
+	$(PIP) $(LOCKED) -r requirements/test.txt
+	$(PIP) check
 	touch $@
 
 install: $(VENV)/.installed
@@ -28,5 +36,20 @@ run: install
 test: install-test
 	$(PY) -m pytest -n 2 --dist loadscope --no-loadscope-reorder $(PYTEST_ARGS)
 
+# Re-resolve pyproject.toml's ranges into the two locks (uv, pinned, in a venv of its own). The test
+# lock is resolved first and constrains the core one, so core's versions are the test set's.
+UV_VERSION := 0.13.9
+LOCK_VENV  := .venv-lock
+FIND_LINKS ?= $(PIP_FIND_LINKS)
+UV_COMPILE = $(LOCK_VENV)/bin/uv pip compile --quiet --no-header --generate-hashes \
+	--python-version 3.11 --python-platform x86_64-manylinux_2_28 \
+	$(if $(FIND_LINKS),--find-links $(FIND_LINKS))
+
+lock:
+	$(PYTHON) -m venv $(LOCK_VENV)
+	$(LOCK_VENV)/bin/pip install --quiet uv==$(UV_VERSION)
+	$(UV_COMPILE) pyproject.toml requirements/build.in --extra dev --extra notebooks --extra sb3 -o requirements/test.txt
+	$(UV_COMPILE) pyproject.toml requirements/build.in -c requirements/test.txt -o requirements/core.txt
+
 clean:
-	rm -rf $(VENV) .pytest_cache .hypothesis
+	rm -rf $(VENV) $(LOCK_VENV) .pytest_cache .hypothesis

@@ -9,9 +9,9 @@ See docs/dqn.md.
 import sys
 
 if __name__ == "__main__":
-    from train_ppo import apply_xla_settings  # the script's directory is on sys.path; it imports no JAX
+    from wrl_jax.cli import machine  # imports no JAX
 
-    apply_xla_settings()
-    from wrl_jax.cli import main
+    machine.apply_for_command(sys.argv[1:])  # XLA's flags and distributed JAX, before JAX starts
+    from wrl_jax.cli.train import main
 
     sys.exit(main("dqn"))

@@ -250,7 +250,7 @@ def main() -> int:
     parser.add_argument("--out", default=None, help="JSON path (default bench/results/sb3_dqn_<preset>[_<steps>].json)")
     args = parser.parse_args()
 
-    from wrl_jax.cli import DEFAULT_XLA_OPT_LEVEL, apply_xla_opt_level
+    from wrl_jax.cli.machine import DEFAULT_XLA_OPT_LEVEL, apply_xla_opt_level
 
     apply_xla_opt_level(DEFAULT_XLA_OPT_LEVEL)  # as train_dqn.py does
     import jax

@@ -57,15 +57,16 @@ def _git_commit() -> str:
 
 # ------------------------------------------------------------------------ ours
 def run_ours(preset: str, env_name: str, seeds: int, total_timesteps: int | None) -> dict:
-    from wrl_jax import cli
+    from wrl_jax.cli import options as cli_options
+    from wrl_jax.cli import train as cli_train
 
     out = Path(tempfile.mkdtemp(prefix=f"bench-ppo-{preset}-"))
     argv = ["--preset", preset, "--env", env_name, "--num-seeds", str(seeds), "--out", str(out), "--no-progress"]
     if total_timesteps:
         argv += ["--total-timesteps", str(total_timesteps)]
     t0 = time.perf_counter()
-    command = cli.parse("ppo", argv)
-    summary = cli.train(command)
+    command = cli_options.parse("ppo", argv)
+    summary = cli_train.train(command)
     wall = time.perf_counter() - t0
     ev = summary["eval"]
     return {

@@ -39,9 +39,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from wrl_jax import cli  # noqa: E402
+from wrl_jax.cli import machine  # noqa: E402
+from wrl_jax.cli import options as cli_options  # noqa: E402
 
-cli.apply_xla_opt_level(cli.DEFAULT_XLA_OPT_LEVEL)
+machine.apply_xla_opt_level(machine.DEFAULT_XLA_OPT_LEVEL)
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
@@ -154,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
         env, params = wrl_jax.make(env_name)
         algo = cls(config, env, params)
         steps = algo.num_updates * algo.steps_per_update
-        entry = {"env": env_name, "config": cli.config_to_dict(config), "env_steps_per_seed": steps,
+        entry = {"env": env_name, "config": cli_options.config_to_dict(config), "env_steps_per_seed": steps,
                  "num_updates": algo.num_updates, "rows": []}
         single: dict = {}
         for n in args.seeds:

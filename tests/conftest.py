@@ -24,16 +24,10 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
 # processes too: about half the compile time of XLA's defaults (most test programs run for milliseconds,
 # and compiling is most of what the suite does), and the same compiled programs as the CLI subprocesses,
 # which inherit XLA_FLAGS, so the cache serves both.
-# machine.py is loaded by its path: importing any wrl_jax module runs wrl_jax/__init__, which starts JAX's
-# backend, after which XLA_FLAGS is read no more.
-import importlib.util  # noqa: E402
+from wrl_jax.cli import machine  # noqa: E402  (imports no JAX: XLA_FLAGS still count)
 
-_spec = importlib.util.spec_from_file_location(
-    "_wrl_jax_machine", os.path.join(os.path.dirname(__file__), "..", "wrl_jax", "cli", "machine.py"))
-_machine = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_machine)
-os.environ["XLA_FLAGS"] = _machine.xla_flags_with_defaults(os.environ.get("XLA_FLAGS", ""),
-                                                           _machine.DEFAULT_XLA_OPT_LEVEL)
+os.environ["XLA_FLAGS"] = machine.xla_flags_with_defaults(os.environ.get("XLA_FLAGS", ""),
+                                                          machine.DEFAULT_XLA_OPT_LEVEL)
 
 import pytest  # noqa: E402
 

@@ -146,11 +146,11 @@ def test_a_run_saved_before_the_package_move_still_evaluates_the_same(tmp_path):
     import json
     from pathlib import Path
 
-    from wrl_jax import cli
+    from wrl_jax.cli import evaluate as cli_evaluate
 
     saved = Path(__file__).parent / "data" / "run_before_gymnax_base"
     then = json.loads((saved / "summary_then.json").read_text())["eval"]
-    now = cli.evaluate_run(saved)
+    now = cli_evaluate.evaluate_run(saved)
     for key in ("success_rate", "mean_steps", "optimal_rate", "collision_free_rate", "stage_switch_rate"):
         assert now[key] == then[key], key
     assert abs(now["mean_return"] - then["mean_return"]) < 1e-3

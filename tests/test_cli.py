@@ -11,7 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wrl_jax import checkpoint, cli, metrics_io
+from wrl_jax import checkpoint, metrics_io
+from wrl_jax.cli import options as cli_options
+from wrl_jax.cli import train as cli_train
 from wrl_jax.cli.options import build
 
 REPO = Path(__file__).resolve().parent.parent
@@ -29,7 +31,7 @@ EVAL_FIELDS = {"success_rate", "mean_steps", "optimal_mean_steps", "collision_fr
 @pytest.fixture(scope="module")
 def finished_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("run")
-    assert cli.main("ppo", [*TINY, "--out", str(out)]) == 0
+    assert cli_train.main("ppo", [*TINY, "--out", str(out)]) == 0
     return out
 
 
@@ -56,10 +58,10 @@ def test_a_run_writes_every_output(finished_run, capsys):
 
 def test_resume_continues_exactly(finished_run, tmp_path):
     out = tmp_path / "split"
-    assert cli.main("ppo", [*TINY, "--out", str(out), "--stop-after", "2"]) == 0
+    assert cli_train.main("ppo", [*TINY, "--out", str(out), "--stop-after", "2"]) == 0
     assert not json.loads((out / "summary.json").read_text())["finished"]
     # Only --resume --out: everything else comes from the checkpoint; a smaller chunk changes nothing.
-    assert cli.main("ppo", ["--resume", "--out", str(out), "--no-progress", "--chunk-updates", "1"]) == 0
+    assert cli_train.main("ppo", ["--resume", "--out", str(out), "--no-progress", "--chunk-updates", "1"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["finished"] and summary["updates_done"] == 6
     a = checkpoint.serialization.msgpack_restore((finished_run / "checkpoint.msgpack").read_bytes())["leaves"]
@@ -94,31 +96,31 @@ def test_evaluation_command_loads_the_checkpoint(finished_run, tmp_path):
     ],
 )
 def test_bad_commands_fail_clearly_before_compiling(argv, message, capsys, tmp_path):
-    assert cli.main("ppo", [*TINY, "--out", str(tmp_path / "x"), *argv]) == 2
+    assert cli_train.main("ppo", [*TINY, "--out", str(tmp_path / "x"), *argv]) == 2
     assert message in capsys.readouterr().err
 
 
 def test_resume_needs_an_output_directory(capsys):
-    assert cli.main("ppo", ["--resume"]) == 2
+    assert cli_train.main("ppo", ["--resume"]) == 2
     assert "--resume needs --out" in capsys.readouterr().err
 
 
 def test_resume_refuses_changed_settings_and_overwrite_is_explicit(finished_run, capsys):
-    assert cli.main("ppo", ["--resume", "--out", str(finished_run), "--learning-rate", "0.5", "--no-progress"]) == 2
+    assert cli_train.main("ppo", ["--resume", "--out", str(finished_run), "--learning-rate", "0.5", "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "config.learning_rate" in err
-    assert cli.main("ppo", [*TINY, "--out", str(finished_run)]) == 2
+    assert cli_train.main("ppo", [*TINY, "--out", str(finished_run)]) == 2
     assert "--overwrite" in capsys.readouterr().err
 
 
 def test_config_round_trip_through_json():
     from wrl_jax.agents import ppo
 
-    data = cli.config_to_dict(ppo.PAPER)
+    data = cli_options.config_to_dict(ppo.PAPER)
     assert data["hidden_sizes"] == [256, 256]
-    assert cli.config_from_dict(ppo.PPOConfig, data) == ppo.PAPER
+    assert cli_options.config_from_dict(ppo.PPOConfig, data) == ppo.PAPER
     with pytest.raises(ValueError, match="no field"):
-        cli.config_from_dict(ppo.PPOConfig, {**data, "bogus": 1})
+        cli_options.config_from_dict(ppo.PPOConfig, {**data, "bogus": 1})
 
 
 def test_train_ppo_script_help():
@@ -142,7 +144,7 @@ def test_train_ppo_script_help():
     ("train_ppo.py", ["--devices", "0"], ["--xla_backend_optimization_level=1", "--xla_cpu_use_fusion_emitters=false"]),
 ])
 def test_the_scripts_set_xla_flags_before_jax_starts(script, argv, expected):
-    """XLA reads XLA_FLAGS once, when JAX starts, and importing wrl_jax starts it: ``train_ppo.py`` must set the
+    """XLA reads XLA_FLAGS once, when JAX starts, and importing an environment starts it: ``train_ppo.py`` must set the
     command's settings first (until 2026-12-02 it set them after, so they never took effect). ``--devices N``
     splits the CPU into N host devices there (``--devices 0``, all devices, adds nothing)."""
     probe = (
@@ -166,26 +168,26 @@ def test_the_scripts_set_xla_flags_before_jax_starts(script, argv, expected):
 
 def test_an_environment_may_bring_its_own_default_preset(tmp_path):
     """Without --preset, the procedural warehouse trains with PPO's 'procedural' preset; the study's maps with 'default'."""
-    procedural = cli.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--out", str(tmp_path / "a")])
+    procedural = cli_options.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--out", str(tmp_path / "a")])
     assert procedural.run.preset == "procedural" and procedural.config.obs_encoding == "raw"
     # ... and its environment default: the previous action in the observation, recorded as an override.
     assert procedural.env.overrides() == {"observe_last_action": True, "observe_visited": True, "visit_levels": 3}
-    plain = cli.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--observe-last-action", "False",
+    plain = cli_options.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--observe-last-action", "False",
                               "--observe-visited", "False", "--visit-levels", "1", "--out", str(tmp_path / "e")])
     assert plain.env.overrides() == {"observe_last_action": False, "observe_visited": False, "visit_levels": 1}
-    study = cli.parse("ppo", ["--out", str(tmp_path / "b")])
+    study = cli_options.parse("ppo", ["--out", str(tmp_path / "b")])
     assert study.run.preset == "default" and study.config.obs_encoding == "onehot"
-    chosen = cli.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--preset", "default", "--out", str(tmp_path / "c")])
+    chosen = cli_options.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--preset", "default", "--out", str(tmp_path / "c")])
     assert chosen.run.preset == "default"
     with pytest.raises(ValueError, match="unknown environment"):
-        cli.parse("ppo", ["--env", "Nowhere-v0", "--out", str(tmp_path / "d")])
+        cli_options.parse("ppo", ["--env", "Nowhere-v0", "--out", str(tmp_path / "d")])
 
 
 def test_shaping_flag_reaches_the_procedural_warehouse_and_is_refused_on_the_study_maps(tmp_path):
-    command = cli.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--shaping", "bfs", "--out", str(tmp_path / "a")])
+    command = cli_options.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--shaping", "bfs", "--out", str(tmp_path / "a")])
     assert command.env.overrides()["shaping"] == "bfs"
     with pytest.raises(ValueError, match="--shaping: fleet or procedural options"):
-        cli.parse("ppo", ["--env", "Warehouse-8x8-v0", "--shaping", "bfs", "--out", str(tmp_path / "b")])
+        cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--shaping", "bfs", "--out", str(tmp_path / "b")])
 
 
 def test_encoder_flag_builds_the_propagation_policy_and_refuses_an_env_without_a_map(tmp_path):
@@ -193,10 +195,10 @@ def test_encoder_flag_builds_the_propagation_policy_and_refuses_an_env_without_a
     compilation) names the missing map and the flag that adds it."""
     argv = ["--env", "Procedural-Warehouse-v0", "--encoder", "propagation", "--propagation-rounds", "32",
             "--pool-size", "16"]
-    command = cli.parse("ppo", [*argv, "--observe-map", "True", "--out", str(tmp_path / "a")])
+    command = cli_options.parse("ppo", [*argv, "--observe-map", "True", "--out", str(tmp_path / "a")])
     assert (command.config.encoder, command.config.propagation_rounds) == ("propagation", 32)
     algo = build(command.spec, command.config, command.env)
     assert algo.map_layout == algo.env.map_observation()
-    command = cli.parse("ppo", [*argv, "--out", str(tmp_path / "b")])
+    command = cli_options.parse("ppo", [*argv, "--out", str(tmp_path / "b")])
     with pytest.raises(ValueError, match="observes none .*--observe-map True"):
         build(command.spec, command.config, command.env)

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 import wrl_jax
-from wrl_jax import cli, training
+from wrl_jax import training
+from wrl_jax.cli import train as cli_train
 from wrl_jax.agents import ppo
 from wrl_jax.agents.ppo import PPO
 from wrl_jax.envs.fleet import evaluation as fleet_evaluation
@@ -123,7 +124,7 @@ def fleet_run(tmp_path_factory):
             "--no-progress", "--no-plot"]
     printed = io.StringIO()
     with contextlib.redirect_stdout(printed):
-        assert cli.main("ppo", argv) == 0
+        assert cli_train.main("ppo", argv) == 0
     return out, printed.getvalue()
 
 

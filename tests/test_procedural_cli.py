@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wrl_jax import cli, maps, training
+from wrl_jax import maps, training
+from wrl_jax.cli import evaluate as cli_evaluate
 from wrl_jax.agents import get_spec, ppo
 from wrl_jax.cli.options import EnvOptions, build, config_to_dict
 from wrl_jax.layout import optimal_route_lengths, parse
@@ -64,7 +65,7 @@ def test_evaluate_on_layout_files(procedural_run, layout_files, tmp_path, capsys
     argv = ["--run", str(procedural_run), "--json", str(out)]
     for path in paths:
         argv += ["--layout", path]
-    assert cli.evaluate_main(argv) == 0
+    assert cli_evaluate.evaluate_main(argv) == 0
     printed = capsys.readouterr().out
     result = json.loads(out.read_text())
     assert list(result["layouts"]) == paths and result["seeds"] == [3, 4]
@@ -88,15 +89,15 @@ def test_evaluate_refuses_a_layout_larger_than_the_runs_observation(procedural_r
     big = tmp_path / "big.map"
     big.write_text("type octile\nheight 17\nwidth 4\nmap\n" + "....\n" * 17)
     argv = ["--run", str(procedural_run), "--layout", str(layout_files["small"]), "--layout", str(big)]
-    assert cli.evaluate_main(argv) == 2
+    assert cli_evaluate.evaluate_main(argv) == 2
     err = capsys.readouterr().err
     assert f"{big} is 17x4, larger than max_shape 16x16" in err and "observation covers floors of at most 16x16" in err
     missing = tmp_path / "nowhere.txt"
-    assert cli.evaluate_main(["--run", str(procedural_run), "--layout", str(missing)]) == 2
+    assert cli_evaluate.evaluate_main(["--run", str(procedural_run), "--layout", str(missing)]) == 2
     assert f"--layout {missing}: no such file" in capsys.readouterr().err
     broken = tmp_path / "broken.txt"
     broken.write_text("S . ?\n. . G\n0 . .\n")
-    assert cli.evaluate_main(["--run", str(procedural_run), "--layout", str(broken)]) == 2
+    assert cli_evaluate.evaluate_main(["--run", str(procedural_run), "--layout", str(broken)]) == 2
     assert f"{broken}: unknown character '?'" in capsys.readouterr().err
 
 

@@ -1,53 +1,59 @@
 """wrl_jax: warehouse-robot reinforcement learning in pure JAX.
 
 ``wrl_jax.make(name, **overrides) -> (env, params)`` builds any registered
-environment (every family; also ``gymnax.make("wrl_jax/<name>")``); the names
-are listed in :mod:`wrl_jax.envs`. Every environment is a gymnax 1.0
-``Environment`` (:mod:`wrl_jax.core.environment`).
+environment (``wrl_jax.registered_names()``; the list is :mod:`wrl_jax.envs`).
+Every environment is a gymnax 1.0 ``Environment`` (:mod:`wrl_jax.core.environment`).
+
+``import wrl_jax`` registers the built-in names (with wrl_jax, Gymnasium, and gymnax
+if gymnax is already imported) and does nothing else: it imports neither JAX nor
+gymnax, so a command can still set XLA's flags or start distributed JAX after it.
+The other names below load their modules on first use.
 """
 
-# A multi-host run initializes JAX's distributed runtime before anything creates the backend
-# (importing gymnax does): see wrl_jax/_distributed.py.
-from wrl_jax import _distributed
+import importlib
+import sys
 
-_distributed.initialize_if_requested()
+import wrl_jax.envs  # noqa: F401  (registers the built-in names)
+from wrl_jax.core.registry import make, register_with_gymnax, registered_names
+from wrl_jax.wrappers.registration import register_gymnasium_envs
 
-# Registration of every built-in name, with wrl_jax and with gymnax: one explicit place.
-import wrl_jax.envs  # noqa: F401  (registers)
-from wrl_jax.core.environment import Environment
-from wrl_jax.core.registry import make, registered_names
-from wrl_jax.envs.warehouse.env import ACTION_NAMES, NUM_ACTIONS, Warehouse, make_params
-from wrl_jax.envs.warehouse.layout import Layout, optimal_route_lengths, parse
-from wrl_jax.envs.warehouse.registration import make_from_layout
-from wrl_jax.envs.warehouse.render import record_episode, render_ascii, render_frame, save_gif
-from wrl_jax.envs.warehouse.types import EnvParams, EnvState
-from wrl_jax.wrappers.legacy import LegacyStepAPI
+register_gymnasium_envs()
+if "gymnax" in sys.modules:  # gymnax is loaded (and JAX started) anyway: add our names to its registry now.
+    register_with_gymnax()
 
-# The module names the package had before the move (``wrl_jax.registry.spec(...)``, ``wrl_jax.env.Warehouse``...).
-from wrl_jax import env, gym_env, layout, registry, render, routes, types  # noqa: E402,F401
+# Public name -> the module that defines it, imported on first access (PEP 562).
+_LAZY = {
+    "Environment": "wrl_jax.core.environment",
+    "ACTION_NAMES": "wrl_jax.envs.warehouse.env",
+    "NUM_ACTIONS": "wrl_jax.envs.warehouse.env",
+    "Warehouse": "wrl_jax.envs.warehouse.env",
+    "make_params": "wrl_jax.envs.warehouse.env",
+    "EnvParams": "wrl_jax.envs.warehouse.types",
+    "EnvState": "wrl_jax.envs.warehouse.types",
+    "Layout": "wrl_jax.envs.warehouse.layout",
+    "optimal_route_lengths": "wrl_jax.envs.warehouse.layout",
+    "parse": "wrl_jax.envs.warehouse.layout",
+    "make_from_layout": "wrl_jax.envs.warehouse.registration",
+    "record_episode": "wrl_jax.envs.warehouse.render",
+    "render_ascii": "wrl_jax.envs.warehouse.render",
+    "render_frame": "wrl_jax.envs.warehouse.render",
+    "save_gif": "wrl_jax.envs.warehouse.render",
+    "LegacyStepAPI": "wrl_jax.wrappers.legacy",
+    "WarehouseGymEnv": "wrl_jax.wrappers.gymnasium",
+    "WarehouseVectorEnv": "wrl_jax.wrappers.gymnasium",
+}
 
-# Registers the Gymnasium ids wrl_jax/Warehouse-8x8-v0 and wrl_jax/Warehouse-12x12-v0.
-from wrl_jax.wrappers.gymnasium import WarehouseGymEnv, WarehouseVectorEnv  # noqa: E402
 
-__all__ = [
-    "ACTION_NAMES",
-    "NUM_ACTIONS",
-    "EnvParams",
-    "EnvState",
-    "Environment",
-    "LegacyStepAPI",
-    "Layout",
-    "Warehouse",
-    "WarehouseGymEnv",
-    "WarehouseVectorEnv",
-    "make",
-    "make_from_layout",
-    "make_params",
-    "optimal_route_lengths",
-    "parse",
-    "record_episode",
-    "registered_names",
-    "render_ascii",
-    "render_frame",
-    "save_gif",
-]
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'wrl_jax' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
+
+__all__ = sorted(["make", "register_with_gymnax", "registered_names", *_LAZY])

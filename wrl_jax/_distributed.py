@@ -2,8 +2,8 @@
 
 ``jax.distributed.initialize`` refuses to run once the XLA backend exists,
 and importing gymnax (which ``wrl_jax`` subclasses) already creates it. So
-``wrl_jax/__init__.py`` calls :func:`initialize_if_requested` first of all:
-when the process was started as a multi-host run (``--distributed`` on a
+the command lines call :func:`initialize_if_requested` first of all
+(:func:`wrl_jax.cli.machine.apply_for_command`): when the process was started as a multi-host run (``--distributed`` on a
 wrl_jax command line, or ``WRL_DISTRIBUTED=1``), it initializes JAX's
 distributed runtime from ``WRL_COORDINATOR``, ``WRL_NUM_PROCESSES`` and
 ``WRL_PROCESS_ID`` (unset ones are left to JAX's cluster auto-detection).

@@ -7,7 +7,7 @@ Every seed's greedy policy on every item index; prints the Table-3-style table
 
 import sys
 
-from wrl_jax.cli import evaluate_main
+from wrl_jax.cli.evaluate import evaluate_main
 
 if __name__ == "__main__":
     sys.exit(evaluate_main())

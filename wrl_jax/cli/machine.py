@@ -85,19 +85,22 @@ def opt_level_from_argv(argv: list[str]) -> int:
 
 
 def apply_for_command(argv: list[str]) -> None:
-    """The training scripts' first statement: the command line's XLA settings, before JAX starts.
+    """A command's first statement: its XLA settings and distributed start-up, before JAX starts.
 
     ``--xla-opt-level`` (with :data:`COMPILE_TIME_FLAGS`) and, for ``--devices N`` with ``N > 1``, the CPU
-    split into ``N`` host devices (:func:`xla_flags_with_host_devices`; ``XLA_FLAGS`` naming its own count wins).
-
-    Importing wrl_jax starts JAX (gymnax creates arrays at import), so the scripts call this before their
-    first import; ``python -m wrl_jax.<command>`` imports the package before any of its code runs, so
-    there only ``XLA_FLAGS`` itself is effective.
+    split into ``N`` host devices (:func:`xla_flags_with_host_devices`; ``XLA_FLAGS`` naming its own count
+    wins). XLA reads ``XLA_FLAGS`` once, when JAX's backend starts (importing gymnax starts it), so this
+    runs before any environment or algorithm is imported; ``import wrl_jax`` itself starts nothing. Then,
+    for ``--distributed`` (or ``WRL_DISTRIBUTED=1``), JAX's distributed runtime
+    (:mod:`wrl_jax._distributed`), which must also come before the backend.
     """
+    from wrl_jax import _distributed
+
     apply_xla_opt_level(opt_level_from_argv(argv))
     # ``--devices N`` on a CPU: split it into N XLA devices, so that there are N to shard over.
     os.environ["XLA_FLAGS"] = xla_flags_with_host_devices(os.environ.get("XLA_FLAGS", ""),
                                                           int_option_from_argv(argv, "--devices", 1))
+    _distributed.initialize_if_requested()
 
 
 def cpu_info() -> dict[str, Any]:

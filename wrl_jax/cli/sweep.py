@@ -221,12 +221,13 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """``python -m wrl_jax.sweep``; status 2 with ``error: ...`` on a bad sweep."""
 
-    from wrl_jax import cli
+    from wrl_jax.cli import machine
+    from wrl_jax import agents
 
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     try:
-        spec = cli.get_spec(args.algo)
+        spec = agents.get_spec(args.algo)
         preset = args.preset or spec.preset_for(args.env or spec.default_env)
         if preset not in spec.presets:
             raise ValueError(f"unknown {spec.name} preset {preset!r}; choose from {sorted(spec.presets)}")
@@ -238,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--num-seeds must be at least 1, got {args.num_seeds}")
         if args.devices < 0 or args.env_shards < 1:
             raise ValueError("--devices must be >= 0 and --env-shards >= 1")
-        cli.apply_xla_opt_level(cli.DEFAULT_XLA_OPT_LEVEL if args.xla_opt_level is None else args.xla_opt_level)
+        machine.apply_xla_opt_level(machine.DEFAULT_XLA_OPT_LEVEL if args.xla_opt_level is None else args.xla_opt_level)
         sweep = Sweep(
             algo_name=spec.name,
             config=config,

@@ -33,7 +33,24 @@ from typing import Any, Generic, TypeVar
 import jax
 import jax.numpy as jnp
 import numpy as np
-from gymnax.environments import environment as gymnax_environment
+
+from wrl_jax.core import registry
+
+# The one import of gymnax in the package. ``import gymnax`` imports every gymnax environment, so a
+# missing dependency of one we never use (six, for its MNIST bandit) fails it: say so, and how to fix it.
+try:
+    import gymnax
+    from gymnax.environments import environment as gymnax_environment
+    from gymnax.environments import spaces
+except ImportError as error:
+    raise ImportError(
+        f"wrl_jax's environments are gymnax environments, and `import gymnax` failed: {error}. "
+        "gymnax imports all of its own environments on import, so any of their dependencies is needed. "
+        "Install the locked set (`make install`, or `pip install --require-hashes --no-deps -r "
+        f"requirements/core.txt`), or the missing package: `pip install {error.name or '<package>'}`."
+    ) from error
+
+registry.register_with_gymnax()
 
 StateT = TypeVar("StateT")
 ParamsT = TypeVar("ParamsT")

@@ -3,8 +3,13 @@
 A family registers each of its named environments once, with a factory
 ``factory(**overrides) -> (env, params)`` given as a ``"module:function"``
 path, so nothing is imported until a name is made. Every name is also
-registered with gymnax's own registry as ``"wrl_jax/<name>"`` (gymnax refuses
-an id twice, so registration checks first and re-imports are harmless).
+registered with gymnax's own registry as ``"wrl_jax/<name>"``, but only once
+gymnax is imported: ``import gymnax`` imports every gymnax environment and
+starts JAX's backend, which ``import wrl_jax`` must not do (a broken corner of
+gymnax would take the whole package down, and XLA's flags could no longer be
+set). :func:`register_with_gymnax` runs when wrl_jax first imports gymnax
+(:mod:`wrl_jax.core.environment`) and on ``import wrl_jax`` if gymnax is
+already loaded; gymnax refuses an id twice, so it checks first.
 
 The one place that lists the built-in names is :mod:`wrl_jax.envs`.
 """
@@ -12,6 +17,7 @@ The one place that lists the built-in names is :mod:`wrl_jax.envs`.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import importlib
 from collections.abc import Callable
 from typing import Any
@@ -51,7 +57,8 @@ def register(name: str, factory: str, *, family: str, **kwargs: Any) -> None:
     if existing is not None and existing != entry:
         raise ValueError(f"environment {name!r} is already registered as {existing}")
     _REGISTRY[name] = entry
-    _register_with_gymnax(name)
+    if _GYMNAX_REGISTERED:
+        register_with_gymnax()
 
 
 def registered_names(family: str | None = None) -> list[str]:
@@ -100,14 +107,24 @@ def evaluation(family: str) -> Any:
     return getattr(importlib.import_module(module_name), attribute)
 
 
-def _register_with_gymnax(name: str) -> None:
-    import gymnax
+_GYMNAX_REGISTERED = False
 
-    gymnax_id = GYMNAX_PREFIX + name
-    if gymnax_id in gymnax.registered_envs:
-        return
 
-    def factory(**overrides: Any):
-        return make(name, **overrides)[0]
+def register_with_gymnax() -> list[str]:
+    """Register every name with gymnax as ``"wrl_jax/<name>"`` (idempotent); returns the gymnax ids.
 
-    gymnax.register(gymnax_id, factory)
+    Imports gymnax. Names registered later are added as they come.
+    """
+    global _GYMNAX_REGISTERED
+    from wrl_jax.core.environment import gymnax
+
+    for name in _REGISTRY:
+        if GYMNAX_PREFIX + name not in gymnax.registered_envs:
+            gymnax.register(GYMNAX_PREFIX + name, functools.partial(_make_env_only, name))
+    _GYMNAX_REGISTERED = True
+    return [GYMNAX_PREFIX + name for name in _REGISTRY]
+
+
+def _make_env_only(name: str, **overrides: Any) -> Any:
+    """gymnax's factories return the environment alone; gymnax pairs it with ``default_params``."""
+    return make(name, **overrides)[0]

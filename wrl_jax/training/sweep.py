@@ -154,9 +154,10 @@ class Sweep:
     seeds: list[int]
 
     def __post_init__(self) -> None:
-        from wrl_jax import cli
+        from wrl_jax.cli import options as cli_options
+        from wrl_jax import agents
 
-        self.spec = cli.get_spec(self.algo_name)
+        self.spec = agents.get_spec(self.algo_name)
         self._check_seeds_and_grid()
         self.config.validate()
         env, base_params = self._make({}, f"environment overrides {self.env_overrides}")
@@ -284,7 +285,8 @@ class Sweep:
         return hyper, env_params
 
     def describe(self) -> dict[str, Any]:
-        from wrl_jax import cli
+        from wrl_jax.cli import options as cli_options
+        from wrl_jax import agents
 
         return {
             "algo": self.spec.name,
@@ -294,7 +296,7 @@ class Sweep:
             "seeds": self.seeds,
             "num_points": len(self.points),
             "batch": len(self.points) * len(self.seeds),
-            "config": cli.config_to_dict(self.config),
+            "config": cli_options.config_to_dict(self.config),
         }
 
 

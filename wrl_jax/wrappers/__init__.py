@@ -1,5 +1,4 @@
-"""Views of our environments for other APIs: Gymnasium (single and vector), gymnax's 5-value step."""
+"""Views of our environments for other APIs: Gymnasium (single and vector), PettingZoo, gymnax's 5-value step.
 
-from wrl_jax.wrappers.legacy import LegacyStepAPI
-
-__all__ = ["LegacyStepAPI"]
+Each module imports its own API; this package imports nothing, so ``import wrl_jax`` stays light.
+"""

@@ -46,8 +46,8 @@ from wrl_jax.core.registry import make
 from wrl_jax.envs.warehouse.registration import make_from_layout
 from wrl_jax.envs.warehouse.render import DEFAULT_CELL_SIZE, check_cell_size, render_ascii, render_frame
 from wrl_jax.envs.warehouse.types import EnvParams, EnvState
+from wrl_jax.wrappers.registration import GYM_NAMESPACE, register_gymnasium_envs
 
-GYM_NAMESPACE = "wrl_jax"
 INFO_FLAGS = ("collision", "wall_bump", "picked_up", "delivered")
 """Bool flags of one transition, in every step's ``info``."""
 
@@ -457,38 +457,6 @@ class WarehouseVectorEnv(gym.vector.VectorEnv):
 
     def __repr__(self) -> str:
         return f"WarehouseVectorEnv({self.name or 'custom layout'}, num_envs={self.num_envs})"
-
-
-# ---------------------------------------------------------------- registration
-def gym_id(name: str) -> str:
-    """The Gymnasium id of a registered name: ``wrl_jax/<name>``."""
-    return f"{GYM_NAMESPACE}/{name}"
-
-
-def register_gymnasium_envs() -> list[str]:
-    """Register every single-robot ``wrl_jax`` environment with Gymnasium (idempotent); returns the ids.
-
-    Both entry points are registered: ``gymnasium.make(id, **overrides)`` builds a
-    :class:`WarehouseGymEnv`, ``gymnasium.make_vec(id, num_envs=n,
-    vectorization_mode="vector_entry_point", **overrides)`` a :class:`WarehouseVectorEnv`.
-    ``max_episode_steps`` stays None: the environment truncates at its own ``max_steps``.
-    """
-    from wrl_jax.core.registry import registered_names
-
-    ids = []
-    for name in registered_names(family="warehouse"):
-        env_id = gym_id(name)
-        if env_id not in gym.registry:
-            gym.register(
-                id=env_id,
-                entry_point=f"{__name__}:WarehouseGymEnv",
-                vector_entry_point=f"{__name__}:WarehouseVectorEnv",
-                kwargs={"name": name},
-                max_episode_steps=None,
-                nondeterministic=False,
-            )
-        ids.append(env_id)
-    return ids
 
 
 GYM_IDS = register_gymnasium_envs()

@@ -50,9 +50,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
-from gymnax.environments import spaces
 
-from wrl_jax.core.environment import Environment
+from wrl_jax.core.environment import Environment, spaces
 from wrl_jax.core.grid import distance_maps
 from wrl_jax.core.observation import (
     RAY_DIRECTIONS,

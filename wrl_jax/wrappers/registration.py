@@ -1,0 +1,43 @@
+"""Gymnasium ids for the single-robot warehouses: ``gymnasium.make("wrl_jax/Warehouse-8x8-v0")``.
+
+Registration stores entry-point strings only, so it imports Gymnasium and nothing of JAX;
+``import wrl_jax`` calls it. The adapters themselves are :mod:`wrl_jax.wrappers.gymnasium`.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+
+from wrl_jax.core.registry import registered_names
+
+GYM_NAMESPACE = "wrl_jax"
+_ADAPTERS = "wrl_jax.wrappers.gymnasium"
+
+
+def gym_id(name: str) -> str:
+    """The Gymnasium id of a registered name: ``wrl_jax/<name>``."""
+    return f"{GYM_NAMESPACE}/{name}"
+
+
+def register_gymnasium_envs() -> list[str]:
+    """Register every single-robot ``wrl_jax`` environment with Gymnasium (idempotent); returns the ids.
+
+    Both entry points are registered: ``gymnasium.make(id, **overrides)`` builds a
+    ``WarehouseGymEnv``, ``gymnasium.make_vec(id, num_envs=n,
+    vectorization_mode="vector_entry_point", **overrides)`` a ``WarehouseVectorEnv``.
+    ``max_episode_steps`` stays None: the environment truncates at its own ``max_steps``.
+    """
+    ids = []
+    for name in registered_names(family="warehouse"):
+        env_id = gym_id(name)
+        if env_id not in gym.registry:
+            gym.register(
+                id=env_id,
+                entry_point=f"{_ADAPTERS}:WarehouseGymEnv",
+                vector_entry_point=f"{_ADAPTERS}:WarehouseVectorEnv",
+                kwargs={"name": name},
+                max_episode_steps=None,
+                nondeterministic=False,
+            )
+        ids.append(env_id)
+    return ids
