@@ -6,7 +6,7 @@ configuration sees the same load on a shared machine):
 * the JAX environment as a learner runs it: ``jax.jit`` of a ``lax.scan`` over
   time of ``jax.vmap(env.step)`` over a batch of environments, with automatic
   reset, at several batch sizes, for each registered layout;
-* the NumPy reference :class:`wrl_jax.reference.WarehouseReferenceEnv`: one
+* the NumPy reference :class:`wrl_jax.envs.warehouse.reference.WarehouseReferenceEnv`: one
   environment, a Python loop, ``reset()`` when an episode ends;
 * Gymnasium's ``SyncVectorEnv`` of reference environments (same-step autoreset,
   the JAX environment's semantics).

@@ -57,7 +57,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import wrl_jax
-from wrl_jax import maps
+from wrl_jax.envs.warehouse import maps
 from wrl_jax.agents.ppo import PROCEDURAL_ENV_DEFAULTS
 from wrl_jax.envs.procedural import generators
 from wrl_jax.envs.procedural.layout import from_layout

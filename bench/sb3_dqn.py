@@ -6,7 +6,7 @@ same number of environment steps per seed:
 - **ours**: the whole run compiled (``wrl_jax.training``), all seeds vmapped
   in one program, on the JAX environment; compile time reported apart.
 - **SB3**: ``stable_baselines3.DQN`` (PyTorch, CPU) on the NumPy reference
-  environment (``wrl_jax.reference``, proven equal to the JAX one transition by
+  environment (``wrl_jax.envs.warehouse.reference``, proven equal to the JAX one transition by
   transition), ``DummyVecEnv`` of ``num_envs`` copies, one seed after another.
 
 The configuration maps one to one: network, learning rate (and its linear
@@ -65,7 +65,8 @@ def load_average() -> list[float] | None:
 def run_ours(config, seeds: list[int], eval_every_updates: int) -> dict[str, Any]:
     import jax
 
-    from wrl_jax import evaluation, training
+    from wrl_jax import training
+    from wrl_jax.envs.warehouse import evaluation
     from wrl_jax.agents.dqn import make_algorithm
 
     algo = make_algorithm(config)
@@ -99,9 +100,9 @@ def greedy_eval_sb3(model, env_name: str) -> dict[str, Any]:
     """Deterministic episodes of an SB3 policy on every item of the reference environment."""
     import torch
 
-    from wrl_jax.layout import optimal_route_lengths
-    from wrl_jax.reference import make_reference
-    from wrl_jax.registry import spec
+    from wrl_jax.envs.warehouse.layout import optimal_route_lengths
+    from wrl_jax.envs.warehouse.reference import make_reference
+    from wrl_jax.envs.warehouse.registration import spec
 
     env = make_reference(env_name)
     optimum = optimal_route_lengths(spec(env_name).layout)
@@ -173,7 +174,7 @@ def run_sb3(config, seeds: list[int], eval_every_steps: int) -> dict[str, Any]:
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from wrl_jax.reference import make_reference
+    from wrl_jax.envs.warehouse.reference import make_reference
 
     class Probe(BaseCallback):
         """Greedy evaluation every ``eval_every_steps`` transitions; its time is excluded from training."""

@@ -8,7 +8,7 @@ For a preset of ``wrl_jax.agents.ppo`` this trains
 - ours: ``train_ppo.py``'s code path (``wrl_jax.cli``), all seeds in one compiled
   program, on the JAX environment;
 - SB3: ``stable_baselines3.PPO`` on the NumPy reference environment
-  (``wrl_jax.reference``, bit-identical transitions), one seed after another,
+  (``wrl_jax.envs.warehouse.reference``, bit-identical transitions), one seed after another,
   8 or 64 Python environments in a ``DummyVecEnv``, configured to match:
   ``n_steps``, ``batch_size`` (= our minibatch), ``n_epochs``, learning rate
   (linear schedule if annealed), ``gamma``, ``gae_lambda``, ``clip_range``,
@@ -118,8 +118,8 @@ def run_sb3(config, env_name: str, seed: int, total_steps: int, torch_threads: i
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from wrl_jax.layout import optimal_route_lengths
-    from wrl_jax.reference import make_reference
+    from wrl_jax.envs.warehouse.layout import optimal_route_lengths
+    from wrl_jax.envs.warehouse.reference import make_reference
 
     def make_one():
         env = make_reference(env_name)
@@ -171,7 +171,7 @@ def run_sb3(config, env_name: str, seed: int, total_steps: int, torch_threads: i
     model.learn(total_timesteps=total_steps, callback=callback)
     train = time.perf_counter() - t1
 
-    # Greedy evaluation on every item, as wrl_jax.evaluation does it.
+    # Greedy evaluation on every item, as wrl_jax.envs.warehouse.evaluation does it.
     env = make_one()
     base = env.unwrapped
     optimum = optimal_route_lengths(base.layout) if hasattr(base, "layout") else None

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from flax import struct
 
-from wrl_jax import checkpoint, metrics_io
+from wrl_jax.training import checkpoint
+from wrl_jax.training import metrics_io
 
 
 @struct.dataclass

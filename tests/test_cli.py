@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wrl_jax import checkpoint, metrics_io
+from wrl_jax.training import checkpoint
+from wrl_jax.training import metrics_io
 from wrl_jax.cli import options as cli_options
 from wrl_jax.cli import train as cli_train
 from wrl_jax.cli.options import build

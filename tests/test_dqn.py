@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 import wrl_jax
-from wrl_jax import evaluation, training
+from wrl_jax import training
+from wrl_jax.envs.warehouse import evaluation
 from wrl_jax.agents.dqn import DQN, PRESETS, DQNConfig, DQNHyper, make_algorithm
 from wrl_jax.agents.replay import Transition
 
@@ -274,7 +275,7 @@ def test_checkpoint_round_trip_and_exact_resume(tmp_path, small_env):
     assert rows_a == rows_b
 
     # The checkpoint on disk holds the final state.
-    from wrl_jax import checkpoint
+    from wrl_jax.training import checkpoint
 
     loaded, saved = checkpoint.load(tmp_path / "straight", jax.eval_shape(lambda: straight.runners))
     assert saved["updates_done"] == algo.num_updates

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import wrl_jax
-from wrl_jax import routes
+from wrl_jax.envs.warehouse import registration, routes
 
 UP, DOWN, LEFT, RIGHT = range(4)
 
@@ -200,7 +200,7 @@ def test_same_program_serves_every_layout_of_a_size():
 @pytest.mark.parametrize("name", ["Warehouse-8x8-v0", "Warehouse-12x12-v0"])
 def test_oracle_delivers_every_item_optimally(name):
     env, params = wrl_jax.make(name)
-    layout = wrl_jax.registry.spec(name).layout
+    layout = registration.spec(name).layout
     tables = routes.route_tables(params)
     optimal = np.asarray(routes.optimal_lengths(params, tables))
     np.testing.assert_array_equal(optimal, wrl_jax.optimal_route_lengths(layout))
@@ -232,7 +232,7 @@ def test_oracle_delivers_every_item_optimally(name):
 
 def test_jax_bfs_agrees_with_numpy_bfs(env_and_params):
     env, params = env_and_params
-    from wrl_jax.layout import bfs_distances
+    from wrl_jax.envs.warehouse.layout import bfs_distances
     tables = routes.route_tables(params)
     reference = bfs_distances(np.asarray(params.shelves), tuple(np.asarray(params.goal)))
     jax_map = np.asarray(tables.to_goal)
@@ -242,7 +242,7 @@ def test_jax_bfs_agrees_with_numpy_bfs(env_and_params):
 
 def test_draw_item_is_exact_multiply_shift():
     """draw_item maps one 32-bit word u to floor(u * k / 2**32), computed without 64-bit integers."""
-    from wrl_jax.env import draw_item
+    from wrl_jax.envs.warehouse.env import draw_item
 
     keys = jax.random.split(jax.random.key(11), 4096)
     words = np.asarray(jax.vmap(lambda k: jax.random.bits(k, (), jnp.uint32))(keys)).astype(np.uint64)
@@ -274,7 +274,7 @@ def test_step_to_item_pins_the_next_episode():
 
 def test_draw_items_gives_each_env_its_own_uniform_item():
     """draw_items: one key, one word per environment, the same multiply-shift as draw_item."""
-    from wrl_jax.env import draw_items
+    from wrl_jax.envs.warehouse.env import draw_items
 
     _, params = wrl_jax.make("Warehouse-12x12-v0")
     key = jax.random.key(5)

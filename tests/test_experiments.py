@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from wrl_jax import evaluation
+from wrl_jax.envs.warehouse import evaluation
 from wrl_jax.experiments import common, failure_modes, forgetting, media, scale, sensitivity, table3
 from wrl_jax.experiments.configs import ENV_8, Setting, build
 from wrl_jax.core.registry import make

@@ -13,10 +13,10 @@ from gymnasium.utils.env_checker import check_env, data_equivalence
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
 
 import wrl_jax
-from wrl_jax import gym_env
-from wrl_jax.gym_env import INFO_FLAGS, WarehouseGymEnv, WarehouseVectorEnv
-from wrl_jax.render import render_frame
-from wrl_jax.routes import oracle_action, route_tables
+from wrl_jax.wrappers import gymnasium as gym_env
+from wrl_jax.wrappers.gymnasium import INFO_FLAGS, WarehouseGymEnv, WarehouseVectorEnv
+from wrl_jax.envs.warehouse.render import render_frame
+from wrl_jax.envs.warehouse.routes import oracle_action, route_tables
 
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # in case pygame is installed: no window needed
 

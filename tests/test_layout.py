@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from wrl_jax import maps
-from wrl_jax.layout import Layout, bfs_distances, optimal_route_lengths, parse
+from wrl_jax.envs.warehouse import maps
+from wrl_jax.envs.warehouse.layout import Layout, bfs_distances, optimal_route_lengths, parse
 
 
 def test_8x8_matches_spec():

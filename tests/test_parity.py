@@ -3,7 +3,7 @@
 The JAX side runs as it runs in training: jitted, ``vmap``-ped over episodes
 and ``lax.scan``-ned over time, with ``env.step``'s automatic reset. Its actions
 (random, mixed with oracle moves so that episodes also deliver) are recorded,
-then replayed one by one in :class:`~wrl_jax.reference.WarehouseReferenceEnv`,
+then replayed one by one in :class:`~wrl_jax.envs.warehouse.reference.WarehouseReferenceEnv`,
 which is reset, whenever its own episode ends, to the item the JAX key drew.
 Every observation (the reset one, the final one kept in ``info["final_obs"]``
 and the one after the automatic reset), reward, ``terminated``, ``truncated``
@@ -25,11 +25,11 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 import wrl_jax
-from wrl_jax import routes
-from wrl_jax.env import Warehouse, make_params
-from wrl_jax.layout import Layout, bfs_distances
-from wrl_jax.reference import DEFAULT_REWARDS, WarehouseReferenceEnv, make_reference
-from wrl_jax.types import REWARD_DEFAULTS
+from wrl_jax.envs.warehouse import routes
+from wrl_jax.envs.warehouse.env import Warehouse, draw_item, make_params
+from wrl_jax.envs.warehouse.layout import Layout, bfs_distances
+from wrl_jax.envs.warehouse.reference import DEFAULT_REWARDS, WarehouseReferenceEnv, make_reference
+from wrl_jax.envs.warehouse.types import REWARD_DEFAULTS
 
 ENV_NAMES = ["Warehouse-8x8-v0", "Warehouse-12x12-v0"]
 FLAGS = ("collision", "wall_bump", "picked_up", "delivered")
@@ -231,7 +231,7 @@ def test_auto_reset_observation_is_a_reference_reset():
         assert bool(truncated) == ref_truncated == (t % 3 == 2)
         if ref_truncated:
             # The JAX key drew this item; the reference reset to it must give the same observation.
-            expected_item = int(wrl_jax.env.draw_item(key, params))
+            expected_item = int(draw_item(key, params))
             assert int(state.item_index) == expected_item
             ref_reset, _ = ref.reset(options={"item_index": expected_item})
             assert_bitwise_equal("auto-reset obs", obs, ref_reset)

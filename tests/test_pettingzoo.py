@@ -8,7 +8,7 @@ import pytest
 from pettingzoo.test import parallel_api_test
 
 import wrl_jax
-from wrl_jax.pettingzoo import parallel_env
+from wrl_jax.wrappers.pettingzoo import parallel_env
 
 
 def test_parallel_api_test_passes():

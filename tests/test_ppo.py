@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import wrl_jax
-from wrl_jax import evaluation, training
+from wrl_jax import training
+from wrl_jax.envs.warehouse import evaluation
 from wrl_jax.agents import ppo
 from wrl_jax.agents.networks import MLP
 from wrl_jax.agents.ppo import PPO, PPOConfig

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from wrl_jax import maps
+from wrl_jax.envs.warehouse import maps
 from wrl_jax.core.observation import robot_observations
 from wrl_jax.core.registry import make
 from wrl_jax.envs.procedural import generators as gen
@@ -33,7 +33,7 @@ from wrl_jax.envs.procedural.pool import (
     refresh_pool,
 )
 from wrl_jax.envs.procedural.registration import make_from_layouts, make_procedural
-from wrl_jax.layout import bfs_distances, optimal_route_lengths, parse
+from wrl_jax.envs.warehouse.layout import bfs_distances, optimal_route_lengths, parse
 
 NUM_LAYOUTS = 5000
 CONFIG = gen.GeneratorConfig()
@@ -97,7 +97,7 @@ def test_every_layout_is_solvable_by_numpy(numpy_pool):
     assert items_reached[real].all()
     # Pockets are filled: every free cell is reachable from the start.
     assert (reached == ~layouts.blocked).all()
-    for index in range(400):  # wrl_jax.layout's BFS: reachability and the JAX BFS optimum
+    for index in range(400):  # wrl_jax.envs.warehouse.layout's BFS: reachability and the JAX BFS optimum
         blocked = _square(layouts.blocked[index])
         start, goal = tuple(layouts.start[index]), tuple(layouts.goal[index])
         items = layouts.items[index][: layouts.num_items[index]]
@@ -811,7 +811,7 @@ def test_final_report_measures_heldout_and_ood_sets(env_and_params, ood, monkeyp
     assert set(ood) == {"dense", "narrow_shelves", "study_8x8", "study_12x12", "movingai"}
     assert [ood[name]["layouts"] for name in ("dense", "narrow_shelves", "movingai")] == [16, 16, 3]
     assert ood["study_8x8"]["episodes"] == 2 * 10 and ood["study_12x12"]["episodes"] == 2 * 20
-    assert ood["study_8x8"]["bfs_optimum"] == 14.0  # the study's mean optimum (wrl_jax.layout's BFS)
+    assert ood["study_8x8"]["bfs_optimum"] == 14.0  # the study's mean optimum (wrl_jax.envs.warehouse.layout's BFS)
     assert ood["movingai"]["episodes"] == 2 * 3 * 8
     for row in [heldout, *ood.values()]:
         assert [entry["seed"] for entry in row["per_seed"]] == [7, 8]

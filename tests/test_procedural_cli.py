@@ -18,11 +18,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wrl_jax import maps, training
+from wrl_jax import training
+from wrl_jax.envs.warehouse import maps
 from wrl_jax.cli import evaluate as cli_evaluate
 from wrl_jax.agents import get_spec, ppo
 from wrl_jax.cli.options import EnvOptions, build, config_to_dict
-from wrl_jax.layout import optimal_route_lengths, parse
+from wrl_jax.envs.warehouse.layout import optimal_route_lengths, parse
 from wrl_jax.training import checkpoint
 
 REPO = Path(__file__).resolve().parent.parent
@@ -70,7 +71,7 @@ def test_evaluate_on_layout_files(procedural_run, layout_files, tmp_path, capsys
     result = json.loads(out.read_text())
     assert list(result["layouts"]) == paths and result["seeds"] == [3, 4]
     study, small, movingai = (result["layouts"][path] for path in paths)
-    # Every item of every file, for each of the 2 seeds; the yardstick is the NumPy BFS of wrl_jax.layout.
+    # Every item of every file, for each of the 2 seeds; the yardstick is the NumPy BFS of wrl_jax.envs.warehouse.layout.
     assert study["episodes"] == 2 * 10 and study["bfs_optimum"] == 14.0
     assert small["episodes"] == 2 * 1
     assert small["bfs_optimum"] == float(optimal_route_lengths(parse(SMALL_ASCII))[0])

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from wrl_jax.layout import MOVES, Layout, bfs_distances, optimal_route_lengths, parse
-from wrl_jax.reference import WarehouseReferenceEnv, make_reference
-from wrl_jax.registry import spec
+from wrl_jax.envs.warehouse.layout import MOVES, Layout, bfs_distances, optimal_route_lengths, parse
+from wrl_jax.envs.warehouse.reference import WarehouseReferenceEnv, make_reference
+from wrl_jax.envs.warehouse.registration import spec
 
 ENV_NAMES = ["Warehouse-8x8-v0", "Warehouse-12x12-v0"]
 UP, DOWN, LEFT, RIGHT = range(4)

@@ -11,9 +11,9 @@ import pytest
 from PIL import Image
 
 import wrl_jax
-from wrl_jax.layout import optimal_route_lengths
-from wrl_jax.registry import spec
-from wrl_jax.render import (
+from wrl_jax.envs.warehouse.layout import optimal_route_lengths
+from wrl_jax.envs.warehouse.registration import spec
+from wrl_jax.envs.warehouse.render import (
     COLORS,
     cell_center,
     frame_shape,

@@ -1,4 +1,4 @@
-"""Training sharded over devices (wrl_jax.sharding) gives the unsharded results.
+"""Training sharded over devices (wrl_jax.training.sharding) gives the unsharded results.
 
 XLA flags must be set before JAX initializes, so the checks run in a fresh
 Python process with ``XLA_FLAGS=--xla_force_host_platform_device_count=2``
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wrl_jax import sharding
+from wrl_jax.training import sharding
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY_UPDATES = 4  # updates of TINY_PPO below
@@ -41,7 +41,8 @@ PRELUDE = """
 import json, os
 import jax, numpy as np
 import wrl_jax
-from wrl_jax import sharding, training
+from wrl_jax import training
+from wrl_jax.training import sharding
 from wrl_jax.agents.dqn import DQN, DQNConfig
 from wrl_jax.agents.ppo import PPO, PPOConfig
 
@@ -97,7 +98,7 @@ out["env_sharded_env_state_equal"] = bitwise(leaves(env_sharded.runners.env_stat
 """
 
 SWEEP_AXIS = """
-from wrl_jax import sweep as sw
+from wrl_jax.training import sweep as sw
 # A PPO sweep of 2 points x 2 seeds on 2 devices: each device trains one point.
 grid = {"learning_rate": [0.003, 0.03], "shaping_coef": [1.0]}
 sweep = sw.Sweep("ppo", TINY_PPO, ENV, {}, grid, seeds=[0, 1])

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import wrl_jax
-from wrl_jax import sweep as sw
+from wrl_jax.training import sweep as sw
 from wrl_jax import training
 from wrl_jax.stats import mean_half_width
 from wrl_jax.agents.dqn import DQN, DQNConfig

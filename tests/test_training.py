@@ -8,9 +8,13 @@ import numpy as np
 import pytest
 
 import wrl_jax
-from wrl_jax import checkpoint, evaluation, metrics_io, routes, training
+from wrl_jax import training
+from wrl_jax.training import checkpoint
+from wrl_jax.envs.warehouse import evaluation
+from wrl_jax.training import metrics_io
+from wrl_jax.envs.warehouse import routes
 from wrl_jax.agents.ppo import PPO, PPOConfig
-from wrl_jax.layout import MOVES
+from wrl_jax.envs.warehouse.layout import MOVES
 
 # A tiny PPO (compiles in seconds, runs in milliseconds): the driver is what is tested here.
 TINY = PPOConfig(

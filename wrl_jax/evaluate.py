@@ -7,7 +7,10 @@ Every seed's greedy policy on every item index; prints the Table-3-style table
 
 import sys
 
-from wrl_jax.cli.evaluate import evaluate_main
-
 if __name__ == "__main__":
+    from wrl_jax.cli import machine  # imports no JAX
+
+    machine.apply_for_command(sys.argv[1:])  # XLA's flags before JAX starts
+    from wrl_jax.cli.evaluate import evaluate_main
+
     sys.exit(evaluate_main())

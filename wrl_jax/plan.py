@@ -5,7 +5,10 @@ Runs a classical fleet planner and reports its throughput; see :mod:`wrl_jax.cli
 
 import sys
 
-from wrl_jax.cli.plan import main
-
 if __name__ == "__main__":
+    from wrl_jax.cli import machine  # imports no JAX
+
+    machine.apply_for_command(sys.argv[1:])  # XLA's flags before JAX starts
+    from wrl_jax.cli.plan import main
+
     sys.exit(main())

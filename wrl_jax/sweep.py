@@ -1,14 +1,11 @@
-"""``python -m wrl_jax.sweep``: moved to :mod:`wrl_jax.training.sweep`.
-
-Run as a module, it is the sweep command; imported, it is an alias of the
-moved module (the same module object), so ``import wrl_jax.sweep`` keeps working.
-"""
+"""``python -m wrl_jax.sweep``: one compiled program for a grid of settings x seeds (:mod:`wrl_jax.cli.sweep`)."""
 
 import sys
 
-from wrl_jax.training import sweep as _moved
-
 if __name__ == "__main__":
-    sys.exit(_moved.main())
-else:
-    sys.modules[__name__] = _moved
+    from wrl_jax.cli import machine  # imports no JAX
+
+    machine.apply_for_command(sys.argv[1:])  # XLA's flags before JAX starts
+    from wrl_jax.cli.sweep import main
+
+    sys.exit(main())

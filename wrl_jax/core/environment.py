@@ -39,9 +39,9 @@ from wrl_jax.core import registry
 # The one import of gymnax in the package. ``import gymnax`` imports every gymnax environment, so a
 # missing dependency of one we never use (six, for its MNIST bandit) fails it: say so, and how to fix it.
 try:
-    import gymnax
+    import gymnax  # noqa: F401  (registry.register_with_gymnax takes it from here)
     from gymnax.environments import environment as gymnax_environment
-    from gymnax.environments import spaces
+    from gymnax.environments import spaces  # noqa: F401  (the families' spaces come from here)
 except ImportError as error:
     raise ImportError(
         f"wrl_jax's environments are gymnax environments, and `import gymnax` failed: {error}. "

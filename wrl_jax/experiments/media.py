@@ -8,7 +8,7 @@ Trains (default presets, 2 seeds each, a minute or two on 2 cores):
   (step penalty -1, no distance shaping), in one program (traced reward constants);
 - PPO on ``Warehouse-12x12-v0``;
 
-then records seed 0's greedy policy with :func:`wrl_jax.render.record_episode`:
+then records seed 0's greedy policy with :func:`wrl_jax.envs.warehouse.render.record_episode`:
 ``dqn_8x8.gif``, ``ppo_12x12.gif``, ``failure_oscillation.gif`` (an episode
 that the oscillation setting's greedy policy fails to deliver, cut to its first
 ``--failure-frames`` steps), and ``learning_curves.png``

@@ -284,7 +284,7 @@ class Trainer:
     def host_state(self, runners: Any) -> Any:
         """The runner state in a form every process can read for a checkpoint (here: as is).
 
-        ``wrl_jax.sharding.ShardedTrainer`` gathers state split across hosts.
+        ``wrl_jax.training.sharding.ShardedTrainer`` gathers state split across hosts.
         """
         return runners
 

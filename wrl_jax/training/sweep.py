@@ -154,7 +154,6 @@ class Sweep:
     seeds: list[int]
 
     def __post_init__(self) -> None:
-        from wrl_jax.cli import options as cli_options
         from wrl_jax import agents
 
         self.spec = agents.get_spec(self.algo_name)
@@ -286,7 +285,6 @@ class Sweep:
 
     def describe(self) -> dict[str, Any]:
         from wrl_jax.cli import options as cli_options
-        from wrl_jax import agents
 
         return {
             "algo": self.spec.name,
@@ -372,7 +370,7 @@ def run_sweep(
     Args:
         sweep: the validated sweep.
         loop: a :class:`wrl_jax.training.LoopConfig` (chunking, evaluation cadence, progress).
-        mesh: a ``jax.sharding.Mesh`` from :func:`wrl_jax.sharding.make_mesh` to shard
+        mesh: a ``jax.sharding.Mesh`` from :func:`wrl_jax.training.sharding.make_mesh` to shard
             the batch over devices; ``None`` trains on the default device.
     """
     import jax

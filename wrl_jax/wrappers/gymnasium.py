@@ -245,7 +245,7 @@ class WarehouseGymEnv(gym.Env):
         if render_mode == "human" and not _pygame_available():
             raise gym.error.DependencyNotInstalled(
                 "render_mode='human' needs pygame: pip install 'wrl_jax[pygame]' "
-                "(or use render_mode='rgb_array' and save frames with wrl_jax.render.save_gif)"
+                "(or use render_mode='rgb_array' and save frames with wrl_jax.envs.warehouse.render.save_gif)"
             )
         self.render_mode = render_mode
         self.cell_size = check_cell_size(cell_size)

@@ -164,5 +164,5 @@ class FleetParallelEnv(ParallelEnv):
 
 
 def parallel_env(name: str = "Fleet-12x12-v0", num_robots: int = 4, render_mode: str | None = None, **overrides):
-    """``wrl_jax.pettingzoo.parallel_env(name="Fleet-12x12-v0", num_robots=4)``: a :class:`FleetParallelEnv`."""
+    """``wrl_jax.wrappers.pettingzoo.parallel_env(name="Fleet-12x12-v0", num_robots=4)``: a :class:`FleetParallelEnv`."""
     return FleetParallelEnv(name, num_robots=num_robots, render_mode=render_mode, **overrides)

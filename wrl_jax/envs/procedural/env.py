@@ -1,7 +1,7 @@
 """The single-robot pick-and-place MDP of SPEC.md on a per-environment layout drawn from a pool.
 
 Dynamics, rewards, truncation and info flags are SPEC.md's (the study's
-warehouse, :mod:`wrl_jax.env`), with Manhattan shaping and no collision-bug
+warehouse, :mod:`wrl_jax.envs.warehouse.env`), with Manhattan shaping and no collision-bug
 switch. What differs is where the layout comes from and what is observed:
 
 - ``reset`` draws a slot of the :class:`~wrl_jax.envs.procedural.pool.LayoutPool`
@@ -91,7 +91,7 @@ NUM_ACTIONS = 4
 SHAPINGS = ("manhattan", "bfs")
 """Distances the reward's shaping term can use (``shaping=``)."""
 MAX_POOL_SIZE = 2**16 - 1
-"""Slot bound of the 32-bit slot draw (:func:`wrl_jax.env.item_from_word`)."""
+"""Slot bound of the 32-bit slot draw (:func:`wrl_jax.envs.warehouse.env.item_from_word`)."""
 MAX_VISIT_LEVELS = 255
 """Largest visit count the trail channel tells apart (8 bit planes)."""
 

@@ -235,10 +235,10 @@ def hash_to_int(hashes: jax.Array | np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------ conversion
 def from_layout(layout: Layout, max_shape: tuple[int, int] | None = None,
                 max_items: int | None = None) -> PaddedLayout:
-    """A :class:`wrl_jax.layout.Layout` (the study's maps, any parsed ASCII map) as padded arrays.
+    """A :class:`wrl_jax.envs.warehouse.layout.Layout` (the study's maps, any parsed ASCII map) as padded arrays.
 
     Args:
-        layout: a validated layout (``wrl_jax.layout.parse``).
+        layout: a validated layout (``wrl_jax.envs.warehouse.layout.parse``).
         max_shape: the padded shape ``(H, W)``; defaults to the layout's own.
         max_items: item capacity ``I``; defaults to the layout's item count.
 
@@ -288,7 +288,7 @@ def from_arrays(shelves: np.ndarray, start: Sequence[int], goal: Sequence[int], 
 
 def check_cells(shelves: np.ndarray, cells: list[tuple[str, np.ndarray]], what: str) -> None:
     """``ValueError`` unless every named cell is on the floor, free, distinct and reachable from the first."""
-    from wrl_jax.layout import bfs_distances
+    from wrl_jax.envs.warehouse.layout import bfs_distances
 
     height, width = shelves.shape
     seen: dict[tuple[int, int], str] = {}
@@ -303,7 +303,7 @@ def check_cells(shelves: np.ndarray, cells: list[tuple[str, np.ndarray]], what: 
         if (row, col) in seen:
             raise ValueError(f"{what}: {name} and {seen[(row, col)]} share cell {(row, col)}")
         seen[(row, col)] = name
-    # wrl_jax.layout.bfs_distances walks a square grid: pad the floor to a square with shelves.
+    # wrl_jax.envs.warehouse.layout.bfs_distances walks a square grid: pad the floor to a square with shelves.
     side = max(height, width)
     square = np.ones((side, side), dtype=bool)
     square[:height, :width] = shelves
@@ -324,9 +324,9 @@ def stack(layouts: Sequence[PaddedLayout]) -> PaddedLayout:
 
 
 def to_numpy_layout(layout: PaddedLayout) -> Layout:
-    """One padded layout back as a square :class:`wrl_jax.layout.Layout` (off-grid becomes shelf).
+    """One padded layout back as a square :class:`wrl_jax.envs.warehouse.layout.Layout` (off-grid becomes shelf).
 
-    For checking against the NumPy BFS of :mod:`wrl_jax.layout` and for
+    For checking against the NumPy BFS of :mod:`wrl_jax.envs.warehouse.layout` and for
     printing with ``Layout.to_ascii``; the square side is ``max(H, W)``.
     """
     blocked = np.asarray(layout.blocked)

@@ -144,7 +144,7 @@ def load_map(path: str | Path, **kwargs) -> PaddedLayout:
     """A map file as a :class:`PaddedLayout`: MovingAI (a ``.map`` file, or first line ``type ...``) or ASCII.
 
     MovingAI maps take :func:`movingai_layout`'s keyword arguments. ASCII maps
-    (``S`` ``G`` ``#`` ``.`` and item markers, ``wrl_jax.layout.parse``) carry
+    (``S`` ``G`` ``#`` ``.`` and item markers, ``wrl_jax.envs.warehouse.layout.parse``) carry
     their own start, goal and items; they take ``max_shape`` and ``max_items``.
     """
     path = Path(path)

@@ -11,7 +11,7 @@ What one episode records (:class:`EpisodeEval`) and how it is judged:
 
 - ``delivered``: the episode terminated (the item reached the goal) before truncation.
 - ``steps``: transitions taken (``max_steps`` when not delivered).
-- ``optimal_steps``: the BFS optimum start -> item -> goal (``wrl_jax.routes``).
+- ``optimal_steps``: the BFS optimum start -> item -> goal (``wrl_jax.envs.warehouse.routes``).
 - ``optimal``: delivered in exactly ``optimal_steps`` (so also without collisions
   or wall bumps, which cost a step without moving).
 - ``collisions``: moves into a shelf. ``collision_free``: none.

@@ -4,8 +4,8 @@ This is the yardstick the JAX environment is checked against, bit for bit
 (``tests/test_parity.py``). It is deliberately written in the style of the
 study: one environment, mutable attributes, Python ``if`` statements and
 NumPy scalars, so that it reads like the specification and shares no
-transition code with ``wrl_jax.env``. The only code it shares is the layout
-parser (``wrl_jax.layout``), which SPEC.md allows, and the registry's table of
+transition code with ``wrl_jax.envs.warehouse.env``. The only code it shares is the layout
+parser (``wrl_jax.envs.warehouse.layout``), which SPEC.md allows, and the registry's table of
 maps and episode limits (data, not logic) for :func:`make_reference`.
 
 Float arithmetic follows SPEC.md literally: the reward is the float32 sum of
@@ -47,7 +47,7 @@ class WarehouseReferenceEnv(gym.Env):
     """One warehouse robot, pick-and-place, exactly as SPEC.md defines it.
 
     Args:
-        layout: a :class:`~wrl_jax.layout.Layout` or an ASCII map (parsed and
+        layout: a :class:`~wrl_jax.envs.warehouse.layout.Layout` or an ASCII map (parsed and
             validated; a bad map raises ``ValueError`` naming the problem).
         max_steps: the step count at which an episode is truncated.
         step_penalty, obstacle_penalty, wall_penalty, shaping_coef,
@@ -91,7 +91,7 @@ class WarehouseReferenceEnv(gym.Env):
         if isinstance(layout, str):
             layout = parse(layout)
         if not isinstance(layout, Layout):
-            raise TypeError(f"layout must be a wrl_jax.layout.Layout or an ASCII map string, got {type(layout)}")
+            raise TypeError(f"layout must be a wrl_jax.envs.warehouse.layout.Layout or an ASCII map string, got {type(layout)}")
         if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
             raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:

@@ -214,7 +214,7 @@ class EpisodeRecording(NamedTuple):
 
 
 def oracle_policy(params: EnvParams) -> PolicyFn:
-    """The BFS oracle (:func:`wrl_jax.routes.oracle_action`) as a ``policy_fn`` for :func:`record_episode`."""
+    """The BFS oracle (:func:`wrl_jax.envs.warehouse.routes.oracle_action`) as a ``policy_fn`` for :func:`record_episode`."""
     from wrl_jax.envs.warehouse.routes import oracle_action, route_tables
 
     tables = route_tables(params)
