@@ -38,7 +38,8 @@ def main(argv: list[str] | None = None) -> int:
 
     from wrl_jax import training
     from wrl_jax.agents import get_spec
-    from wrl_jax.cli.options import EnvOptions, build, config_from_dict
+    from wrl_jax.agents.base import config_from_dict
+    from wrl_jax.cli.options import EnvOptions, build
     from wrl_jax.envs.fleet.env import propose
     from wrl_jax.envs.fleet.evaluation import EVAL_SEED
     from wrl_jax.envs.fleet.metrics import BLOCK_CAUSES as CLASSES

@@ -34,7 +34,8 @@ def main(argv: list[str] | None = None) -> int:
     import wrl_jax
     from wrl_jax import training
     from wrl_jax.agents import get_spec
-    from wrl_jax.cli.options import EnvOptions, build, config_from_dict
+    from wrl_jax.agents.base import config_from_dict
+    from wrl_jax.cli.options import EnvOptions, build
     from wrl_jax.envs.fleet import metrics
     from wrl_jax.envs.fleet.evaluation import EVAL_SEED
     from wrl_jax.training import checkpoint

@@ -36,7 +36,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from wrl_jax.agents import get_spec  # noqa: E402
-from wrl_jax.cli.options import EnvOptions, build, config_from_dict  # noqa: E402
+from wrl_jax.agents.base import config_from_dict  # noqa: E402
+from wrl_jax.cli.options import EnvOptions, build  # noqa: E402
 from wrl_jax.envs.procedural import evaluation as procedural_evaluation  # noqa: E402
 from wrl_jax.envs.procedural.pool import pool_of  # noqa: E402
 from wrl_jax.training import Trainer, LoopConfig, checkpoint  # noqa: E402

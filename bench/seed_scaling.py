@@ -4,12 +4,12 @@ For DQN and PPO (their default presets, and DQN's paper preset with one
 environment per seed, each with a small fixed budget per seed), and N in 1, 8,
 32, 128:
 
-- *one program*: ``jax.jit(training.make_train_seeds(algo))`` on N keys, the
+- *one program*: ``jax.jit(make_train_seeds(algo))`` on N keys, the
   whole training run of every seed in one XLA program (init, then a
   ``lax.scan`` over updates of the ``vmap``-ped update). Compiled ahead of time
   (``lower().compile()``, timed apart), then run once and timed to
   ``block_until_ready``.
-- *one by one*: ``jax.jit(training.make_train(algo))`` compiled once (timed
+- *one by one*: ``jax.jit(make_train(algo))`` compiled once (timed
   apart), then called for seed 0, 1, ..., N-1 in a Python loop, each call
   waited for. Loops longer than ``--loop-max`` seeds are not run: their time is
   N times the mean single-seed time measured on the first ``--loop-max``
@@ -40,7 +40,6 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from wrl_jax.cli import machine  # noqa: E402
-from wrl_jax.cli import options as cli_options  # noqa: E402
 
 machine.apply_xla_opt_level(machine.DEFAULT_XLA_OPT_LEVEL)
 
@@ -49,6 +48,7 @@ import numpy as np  # noqa: E402
 
 import wrl_jax  # noqa: E402
 from wrl_jax import training  # noqa: E402
+from wrl_jax.agents.base import config_to_dict, make_train, make_train_seeds  # noqa: E402
 from wrl_jax.agents import dqn, ppo  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -91,7 +91,7 @@ def time_call(fn, *args) -> float:
 def one_program(algo, n: int) -> dict:
     keys = training.seed_keys(list(range(n)))
     t0 = time.perf_counter()
-    compiled = jax.jit(training.make_train_seeds(algo)).lower(keys).compile()
+    compiled = jax.jit(make_train_seeds(algo)).lower(keys).compile()
     compile_s = time.perf_counter() - t0
     load_before = load()
     run_s = time_call(compiled, keys)
@@ -103,7 +103,7 @@ def one_by_one(algo, n: int, loop_max: int, single: dict) -> dict:
     if "compiled" not in single:
         key = jax.random.PRNGKey(0)
         t0 = time.perf_counter()
-        single["compiled"] = jax.jit(training.make_train(algo)).lower(key).compile()
+        single["compiled"] = jax.jit(make_train(algo)).lower(key).compile()
         single["compile_seconds"] = time.perf_counter() - t0
         single["times"] = []
     compiled, times = single["compiled"], single["times"]
@@ -155,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
         env, params = wrl_jax.make(env_name)
         algo = cls(config, env, params)
         steps = algo.num_updates * algo.steps_per_update
-        entry = {"env": env_name, "config": cli_options.config_to_dict(config), "env_steps_per_seed": steps,
+        entry = {"env": env_name, "config": config_to_dict(config), "env_steps_per_seed": steps,
                  "num_updates": algo.num_updates, "rows": []}
         single: dict = {}
         for n in args.seeds:

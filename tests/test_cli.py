@@ -13,6 +13,7 @@ import pytest
 
 from wrl_jax.training import checkpoint
 from wrl_jax.training import metrics_io
+from wrl_jax.agents.base import config_from_dict, config_to_dict
 from wrl_jax.cli import options as cli_options
 from wrl_jax.cli import train as cli_train
 from wrl_jax.cli.options import build
@@ -117,11 +118,11 @@ def test_resume_refuses_changed_settings_and_overwrite_is_explicit(finished_run,
 def test_config_round_trip_through_json():
     from wrl_jax.agents import ppo
 
-    data = cli_options.config_to_dict(ppo.PAPER)
+    data = config_to_dict(ppo.PAPER)
     assert data["hidden_sizes"] == [256, 256]
-    assert cli_options.config_from_dict(ppo.PPOConfig, data) == ppo.PAPER
+    assert config_from_dict(ppo.PPOConfig, data) == ppo.PAPER
     with pytest.raises(ValueError, match="no field"):
-        cli_options.config_from_dict(ppo.PPOConfig, {**data, "bogus": 1})
+        config_from_dict(ppo.PPOConfig, {**data, "bogus": 1})
 
 
 def test_train_ppo_script_help():

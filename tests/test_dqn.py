@@ -19,6 +19,7 @@ import pytest
 
 import wrl_jax
 from wrl_jax import training
+from wrl_jax.agents.base import make_train, make_train_seeds
 from wrl_jax.envs.warehouse import evaluation
 from wrl_jax.agents.dqn import DQN, PRESETS, DQNConfig, DQNHyper, make_algorithm
 from wrl_jax.agents.replay import Transition
@@ -63,7 +64,7 @@ def small_runs(small_env):
     """Four seeds (0, 1, 2, 0) of SMALL trained in one program, and a second call of the same program."""
     env, params = small_env
     algo = DQN(SMALL, env, params)
-    train = jax.jit(training.make_train_seeds(algo))
+    train = jax.jit(make_train_seeds(algo))
     keys = training.seed_keys([0, 1, 2, 0])
     first = train(keys)
     second = train(keys)
@@ -155,7 +156,7 @@ def test_target_bootstraps_through_truncation():
     learned = {}
     for cls in (DQN, TruncationAsTermination):
         algo = cls(config, env, params)
-        runner, _ = jax.jit(training.make_train(algo))(jax.random.PRNGKey(0))
+        runner, _ = jax.jit(make_train(algo))(jax.random.PRNGKey(0))
         learned[cls] = np.asarray(algo.q_values(runner.params, start_obs)) / config.reward_scale
     up, _, _, right = learned[DQN]
     assert right == pytest.approx(q_right, rel=0.02)

@@ -13,6 +13,7 @@ import wrl_jax
 from wrl_jax import training
 from wrl_jax.envs.warehouse import evaluation
 from wrl_jax.agents import ppo
+from wrl_jax.agents.base import make_train, make_train_seeds
 from wrl_jax.agents.networks import MLP
 from wrl_jax.agents.ppo import PPO, PPOConfig
 
@@ -106,7 +107,7 @@ def _critic_at_start(bootstrap: bool) -> float:
         bootstrap_truncated=bootstrap,
     )
     algo = PPO(config, env, params)
-    runner, _ = jax.jit(training.make_train(algo))(jax.random.PRNGKey(0))
+    runner, _ = jax.jit(make_train(algo))(jax.random.PRNGKey(0))
     obs, _ = env.reset_to_item(0, params)
     return float(algo.forward(algo.unflatten(runner.params)["critic"], obs)[0])
 
@@ -140,7 +141,7 @@ def test_seeds_differ_and_a_seed_repeats_bit_for_bit():
     env, params = wrl_jax.make("Warehouse-8x8-v0")
     config = PPOConfig(num_envs=8, num_steps=8, num_minibatches=2, update_epochs=1, hidden_sizes=(8,),
                        total_timesteps=8 * 8 * 3)
-    train = jax.jit(training.make_train_seeds(PPO(config, env, params)))
+    train = jax.jit(make_train_seeds(PPO(config, env, params)))
     keys = training.seed_keys([0, 1, 0])
     first, metrics = train(keys)
     second, metrics2 = train(keys)
@@ -149,7 +150,7 @@ def test_seeds_differ_and_a_seed_repeats_bit_for_bit():
     assert all(np.array_equal(metrics[k], metrics2[k]) for k in metrics)
     assert not np.array_equal(params_a[0], params_a[1])
     assert np.array_equal(params_a[0], params_a[2])  # same seed, same batch: same bits
-    alone, _ = jax.jit(training.make_train_seeds(PPO(config, env, params)))(training.seed_keys([1]))
+    alone, _ = jax.jit(make_train_seeds(PPO(config, env, params)))(training.seed_keys([1]))
     # Alone vs in a batch the arithmetic is the same up to float rounding of batched kernels.
     np.testing.assert_allclose(np.asarray(alone.params)[0], params_a[1], atol=1e-5)
 

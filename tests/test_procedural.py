@@ -739,7 +739,7 @@ def test_ascii_map_files_load_as_layouts(tmp_path):
 
 # ---------------------------------------------------------------- evaluation hook
 def test_greedy_evaluation_on_heldout_layouts(env_and_params):
-    from wrl_jax.training.evaluation import for_env
+    from wrl_jax.core.evaluation import for_env
 
     env, params = env_and_params
     evaluation = for_env(env)
@@ -788,7 +788,7 @@ def test_final_report_measures_heldout_and_ood_sets(env_and_params, ood, monkeyp
     from types import SimpleNamespace
 
     from wrl_jax.envs.procedural import evaluation
-    from wrl_jax.training.evaluation import FinalContext
+    from wrl_jax.core.evaluation import FinalContext
 
     monkeypatch.setattr(evaluation, "FINAL_HELDOUT_LAYOUTS", 48)
 

@@ -22,7 +22,8 @@ from wrl_jax import training
 from wrl_jax.envs.warehouse import maps
 from wrl_jax.cli import evaluate as cli_evaluate
 from wrl_jax.agents import get_spec, ppo
-from wrl_jax.cli.options import EnvOptions, build, config_to_dict
+from wrl_jax.agents.base import config_to_dict
+from wrl_jax.cli.options import EnvOptions, build
 from wrl_jax.envs.warehouse.layout import optimal_route_lengths, parse
 from wrl_jax.training import checkpoint
 

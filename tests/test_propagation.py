@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from wrl_jax import training
+from wrl_jax.agents.base import make_train
 from wrl_jax.agents import ppo, propagation
 from wrl_jax.core.registry import make
 
@@ -174,7 +174,7 @@ def test_training_makes_shelves_dear_and_delivers_on_held_out_layouts():
     config = dataclasses.replace(ppo.PROCEDURAL, encoder="propagation", num_envs=32, total_timesteps=100 * 1024,
                                  hidden_sizes=(64, 64))
     algo = ppo.PPO(config, env, params)
-    train = training.make_train(algo)
+    train = make_train(algo)
     runner, metrics = jax.jit(train)(jax.random.key(0))
     learned = algo.unflatten(runner.params)["actor"]["propagation"]
     _, grids = map_grids(env, params, 64)

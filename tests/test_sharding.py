@@ -44,6 +44,7 @@ import wrl_jax
 from wrl_jax import training
 from wrl_jax.training import sharding
 from wrl_jax.agents.dqn import DQN, DQNConfig
+from wrl_jax.agents.base import make_train_seeds
 from wrl_jax.agents.ppo import PPO, PPOConfig
 
 ENV = "Warehouse-8x8-v0"
@@ -75,7 +76,7 @@ out["param_shard_rows"] = sorted(s.data.shape[0] for s in lay.addressable_shards
 out["param_shard_devices"] = len({s.device for s in lay.addressable_shards})
 # One device: make_train_seeds, the same updates as the chunked driver bit for bit (tests/test_training.py),
 # compiled once per batch size.
-train = jax.jit(training.make_train_seeds(algo))
+train = jax.jit(make_train_seeds(algo))
 halves = [train(training.seed_keys(part)) for part in ([0, 1], [2, 3])]
 joined = [np.concatenate([a, b]) for a, b in zip(leaves(halves[0][0]), leaves(halves[1][0]))]
 out["seed_sharded_equals_halves_bitwise"] = bitwise(leaves(sharded.runners), joined)

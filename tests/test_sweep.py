@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 
 import wrl_jax
+from wrl_jax.cli import sweep as sweep_cli
 from wrl_jax.training import sweep as sw
+from wrl_jax.training import sweep_outputs
 from wrl_jax import training
 from wrl_jax.stats import mean_half_width
 from wrl_jax.agents.dqn import DQN, DQNConfig
@@ -128,7 +130,7 @@ def test_dqn_sweep_equals_an_individual_run_bitwise(dqn_sweep):
 
 def test_results_table_files_and_ci(ppo_sweep, tmp_path):
     sweep, result = ppo_sweep
-    data = sw.write_outputs(result, tmp_path, command="python -m wrl_jax.sweep ...")
+    data = sweep_outputs.write_outputs(result, tmp_path, command="python -m wrl_jax.sweep ...")
     for name in ("results.md", "results.csv", "results.json", "metrics.csv", "sweep.png"):
         assert (tmp_path / name).stat().st_size > 0
     table = (tmp_path / "results.md").read_text()
@@ -184,23 +186,23 @@ def test_bad_sweeps_raise_clear_errors(grid, seeds, message):
 
 
 def test_grid_and_set_parsing():
-    grid = sw.parse_grid(["learning_rate=0.003,0.01", "max_steps=50,100"], PPOConfig)
+    grid = sweep_cli.parse_grid(["learning_rate=0.003,0.01", "max_steps=50,100"], PPOConfig)
     assert grid == {"learning_rate": [0.003, 0.01], "max_steps": [50, 100]}
     assert isinstance(grid["max_steps"][0], int)
-    config, env = sw.parse_sets(["total_timesteps=4096", "hidden_sizes=32,32", "shaping_coef=1.5"], PPOConfig)
+    config, env = sweep_cli.parse_sets(["total_timesteps=4096", "hidden_sizes=32,32", "shaping_coef=1.5"], PPOConfig)
     assert config == {"total_timesteps": 4096, "hidden_sizes": (32, 32)} and env == {"shaping_coef": 1.5}
     with pytest.raises(ValueError, match="FIELD=V1,V2"):
-        sw.parse_grid(["learning_rate"], PPOConfig)
+        sweep_cli.parse_grid(["learning_rate"], PPOConfig)
     with pytest.raises(ValueError, match="unknown field 'widths'"):
-        sw.parse_sets(["widths=3"], PPOConfig)
+        sweep_cli.parse_sets(["widths=3"], PPOConfig)
 
 
 def test_command_line_errors_exit_with_status_2(capsys):
-    assert sw.main(["--algo", "ppo", "--grid", "hidden_sizes=8,16", "--no-progress"]) == 2
+    assert sweep_cli.main(["--algo", "ppo", "--grid", "hidden_sizes=8,16", "--no-progress"]) == 2
     assert "is static" in capsys.readouterr().err
-    assert sw.main(["--algo", "nope", "--grid", "learning_rate=0.1"]) == 2
+    assert sweep_cli.main(["--algo", "nope", "--grid", "learning_rate=0.1"]) == 2
     assert "unknown algorithm" in capsys.readouterr().err
-    assert sw.main(["--algo", "dqn", "--grid", "learning_rate=0.1", "--devices", "64"]) == 2
+    assert sweep_cli.main(["--algo", "dqn", "--grid", "learning_rate=0.1", "--devices", "64"]) == 2
     assert "devices=64" in capsys.readouterr().err
 
 
@@ -226,7 +228,7 @@ def test_fleet_sweep_trains_each_point_with_its_block_penalty(tmp_path):
     assert not all(np.array_equal(a, b) for a, b in zip(element_leaves(result.run.runners.params, slice(0, 2)),
                                                          element_leaves(result.run.runners.params, slice(2, 4))))
     # The fleet's columns, from its evaluation summary and its multi-agent training rows.
-    sw.write_outputs(result, tmp_path, plot=False)
+    sweep_outputs.write_outputs(result, tmp_path, plot=False)
     header = (tmp_path / "results.md").read_text().splitlines()[2]
     for label in ("greedy throughput", "greedy / PIBT", "seeds >= PIBT", "blocks /robot /100 steps",
                   "train throughput (last log)", "first step >= PIBT"):
@@ -267,12 +269,12 @@ def test_the_documented_fleet_command_parses():
 
     docs = (Path(__file__).resolve().parents[1] / "docs" / "scale.md").read_text()
     assert FLEET_EXAMPLE in docs
-    args = sw.build_parser().parse_args(shlex.split(FLEET_EXAMPLE)[3:])
+    args = sweep_cli.build_parser().parse_args(shlex.split(FLEET_EXAMPLE)[3:])
     assert (args.algo, args.env, args.num_seeds) == ("ppo", FLEET, 4)
-    config, env = sw.parse_sets(args.set, PPOConfig, args.env)
+    config, env = sweep_cli.parse_sets(args.set, PPOConfig, args.env)
     assert config == {} and env == {"num_robots": 2} and isinstance(env["num_robots"], int)
-    grid = sw.parse_grid(args.grid, PPOConfig, args.env)
+    grid = sweep_cli.parse_grid(args.grid, PPOConfig, args.env)
     assert grid == {"block_penalty": [-1.0, -5.0], "ent_coef": [0.05, 0.2]}
     assert all(isinstance(v, float) for v in grid["block_penalty"])
     with pytest.raises(ValueError, match="unknown field 'num_robot'"):
-        sw.parse_sets(["num_robot=2"], PPOConfig, FLEET)
+        sweep_cli.parse_sets(["num_robot=2"], PPOConfig, FLEET)

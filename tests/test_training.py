@@ -9,6 +9,7 @@ import pytest
 
 import wrl_jax
 from wrl_jax import training
+from wrl_jax.agents.base import make_train_seeds
 from wrl_jax.training import checkpoint
 from wrl_jax.envs.warehouse import evaluation
 from wrl_jax.training import metrics_io
@@ -62,7 +63,7 @@ def test_chunk_size_does_not_change_results(algo, reference):
 
 def test_make_train_matches_the_chunked_driver(algo, reference):
     _, ref = reference
-    runner, metrics = jax.jit(training.make_train_seeds(algo))(training.seed_keys(SEEDS))
+    runner, metrics = jax.jit(make_train_seeds(algo))(training.seed_keys(SEEDS))
     assert leaves_equal(runner, ref.runners)
     assert metrics["episodes"].shape == (len(SEEDS), TINY.num_updates)
 

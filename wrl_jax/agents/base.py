@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-from collections.abc import Mapping
+import json
+import typing
+from collections.abc import Callable, Mapping
 from typing import Any, ClassVar, Generic, TypeVar
 
 import jax
@@ -213,3 +215,54 @@ def track_episodes(
 def sum_episode_sums(sums: EpisodeSums) -> EpisodeSums:
     """Collapse a leading (time) axis of stacked :class:`EpisodeSums`."""
     return jax.tree.map(lambda x: x.sum(axis=0), sums)
+
+
+# ------------------------------------------------------------ PureJaxRL shape
+def make_train(algo: Algorithm, num_updates: int | None = None) -> Callable[..., tuple[Any, dict]]:
+    """``train(key, hyper=None, env_params=None) -> (runner, metrics)`` for one seed.
+
+    ``init`` then ``lax.scan`` of ``update`` over ``num_updates`` updates (the
+    algorithm's full run by default). ``metrics`` leaves have a leading update
+    axis. Pure: ``jax.jit`` it, or ``jax.vmap`` it over keys (:func:`make_train_seeds`)
+    and over traced hyperparameters for a sweep.
+
+    The initial runner passes through an optimization barrier: without it XLA
+    fuses the initialisation arithmetic into the first update, and on CPUs
+    with FMA/AVX-512 the contracted multiply-adds round differently from the
+    chunked driver (which initialises in its own program), so the two would
+    differ in the last bits. With it, this one program equals the driver bit
+    for bit (``tests/test_training.py``).
+    """
+    num_updates = algo.num_updates if num_updates is None else int(num_updates)
+
+    def train(key: jax.Array, hyper: Any = None, env_params: Any = None):
+        runner = jax.lax.optimization_barrier(algo.init(key, hyper, env_params))
+        return jax.lax.scan(algo.update, runner, jnp.arange(num_updates, dtype=jnp.int32))
+
+    return train
+
+
+def make_train_seeds(algo: Algorithm, num_updates: int | None = None) -> Callable[[jax.Array], tuple[Any, dict]]:
+    """:func:`make_train` ``vmap``-ped over a batch of keys (one per seed); the update index stays unbatched."""
+    return jax.vmap(make_train(algo, num_updates))
+
+
+# ------------------------------------------------------ configs as JSON data
+def config_to_dict(config: Any) -> dict[str, Any]:
+    """A config dataclass as JSON-able data (tuples become lists)."""
+    return json.loads(json.dumps(dataclasses.asdict(config)))
+
+
+def config_from_dict(cls: type, data: dict[str, Any]) -> Any:
+    """Rebuild a config dataclass from :func:`config_to_dict`'s output (lists back to tuples)."""
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ValueError(f"{cls.__name__} has no field(s) {unknown}")
+    values = {}
+    for name, value in data.items():
+        if isinstance(value, list) and typing.get_origin(hints[name]) is tuple:
+            value = tuple(value)
+        values[name] = value
+    return cls(**values)

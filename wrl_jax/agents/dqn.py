@@ -71,6 +71,7 @@ from wrl_jax.agents.common import (
     linear_decay,
     traced_fields,
 )
+from wrl_jax.agents import base
 from wrl_jax.agents.networks import MLP, mlp_forward_flops
 from wrl_jax.agents.replay import ReplayBuffer, Transition
 from wrl_jax.core.environment import Environment
@@ -588,9 +589,7 @@ def make_train(
     ``lax.cond``s under ``vmap``. ``train(key, hyper, env_params)`` also takes
     a :class:`DQNHyper` (e.g. batched for a sweep) and environment params.
     """
-    from wrl_jax.training import make_train as shared_make_train
-
-    return shared_make_train(make_algorithm(config, env, env_params))
+    return base.make_train(make_algorithm(config, env, env_params))
 
 
 def _unit_float(bits: jax.Array) -> jax.Array:

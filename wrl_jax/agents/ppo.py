@@ -60,7 +60,7 @@ from wrl_jax.agents.common import (
     linear_decay,
     traced_fields,
 )
-from wrl_jax.agents import propagation
+from wrl_jax.agents import base, propagation
 from wrl_jax.agents.networks import ACTIVATIONS, mlp_forward_flops
 from wrl_jax.core.environment import Environment
 
@@ -821,13 +821,12 @@ def make_train(config: PPOConfig, env: Environment | None = None, env_params: An
     """``train(key) -> (runner, metrics)``: a whole PPO run of one seed as one pure, jittable function.
 
     The environment defaults to ``Warehouse-12x12-v0``. ``jax.vmap`` it over keys
-    for many seeds (``wrl_jax.training.make_train_seeds`` does).
+    for many seeds (:func:`~wrl_jax.agents.base.make_train_seeds` does).
     """
     from wrl_jax.core.registry import make
-    from wrl_jax.training import make_train as _make_train
 
     if env is None:
         env, env_params = make("Warehouse-12x12-v0")
     elif env_params is None:
         raise ValueError("pass env_params together with env")
-    return _make_train(PPO(config, env, env_params))
+    return base.make_train(PPO(config, env, env_params))

@@ -18,7 +18,8 @@ from typing import Any
 
 from wrl_jax.agents import get_spec
 from wrl_jax.cli.machine import DEFAULT_XLA_OPT_LEVEL, apply_xla_opt_level
-from wrl_jax.cli.options import EnvOptions, build, config_from_dict
+from wrl_jax.agents.base import config_from_dict
+from wrl_jax.cli.options import EnvOptions, build
 
 
 def evaluate_run(run_dir: str | os.PathLike) -> dict[str, Any]:
@@ -29,7 +30,7 @@ def evaluate_run(run_dir: str | os.PathLike) -> dict[str, Any]:
     """
     from wrl_jax import training
     from wrl_jax.training import checkpoint
-    from wrl_jax.training import evaluation as family_evaluation
+    from wrl_jax.core import evaluation as family_evaluation
 
     run_dir = Path(run_dir)
     meta = checkpoint.read_metadata(run_dir)

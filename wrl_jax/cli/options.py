@@ -13,14 +13,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
-import json
 import sys
-import typing
 from pathlib import Path
 from typing import Any
 
 from wrl_jax.agents import get_spec
-from wrl_jax.agents.base import AlgoSpec
+from wrl_jax.agents.base import AlgoSpec, config_from_dict
 from wrl_jax.cli.machine import DEFAULT_XLA_OPT_LEVEL
 
 @dataclasses.dataclass
@@ -124,26 +122,6 @@ class RunOptions:
 
     def seeds(self) -> list[int]:
         return list(range(self.seed, self.seed + self.num_seeds))
-
-
-def config_to_dict(config: Any) -> dict[str, Any]:
-    """A config dataclass as JSON-able data (tuples become lists)."""
-    return json.loads(json.dumps(dataclasses.asdict(config)))
-
-
-def config_from_dict(cls: type, data: dict[str, Any]) -> Any:
-    """Rebuild a config dataclass from :func:`config_to_dict`'s output (lists back to tuples)."""
-    hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - names)
-    if unknown:
-        raise ValueError(f"{cls.__name__} has no field(s) {unknown}")
-    values = {}
-    for name, value in data.items():
-        if isinstance(value, list) and typing.get_origin(hints[name]) is tuple:
-            value = tuple(value)
-        values[name] = value
-    return cls(**values)
 
 
 # --------------------------------------------------------------------- parse

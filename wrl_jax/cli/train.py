@@ -17,7 +17,8 @@ import time
 from typing import Any
 
 from wrl_jax.cli.machine import apply_xla_opt_level, cpu_info
-from wrl_jax.cli.options import Command, build, config_to_dict, parse
+from wrl_jax.agents.base import config_to_dict
+from wrl_jax.cli.options import Command, build, parse
 
 def train(command: Command) -> dict[str, Any]:
     """Train, evaluate and write every output of a parsed command; returns the summary."""
@@ -26,7 +27,7 @@ def train(command: Command) -> dict[str, Any]:
 
     from wrl_jax import training
     from wrl_jax.training import checkpoint, metrics_io
-    from wrl_jax.training import evaluation as family_evaluation
+    from wrl_jax.core import evaluation as family_evaluation
     from wrl_jax.agents.networks import measured_matmul_peak_gflops
 
     wall_start = time.perf_counter()

@@ -35,21 +35,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from wrl_jax.core import registry
+from wrl_jax.core.gymnax_base import gymnax_environment, spaces  # noqa: F401  (the families' spaces)
 
-# The one import of gymnax in the package. ``import gymnax`` imports every gymnax environment, so a
-# missing dependency of one we never use (six, for its MNIST bandit) fails it: say so, and how to fix it.
-try:
-    import gymnax  # noqa: F401  (registry.register_with_gymnax takes it from here)
-    from gymnax.environments import environment as gymnax_environment
-    from gymnax.environments import spaces  # noqa: F401  (the families' spaces come from here)
-except ImportError as error:
-    raise ImportError(
-        f"wrl_jax's environments are gymnax environments, and `import gymnax` failed: {error}. "
-        "gymnax imports all of its own environments on import, so any of their dependencies is needed. "
-        "Install the locked set (`make install`, or `pip install --require-hashes --no-deps -r "
-        f"requirements/core.txt`), or the missing package: `pip install {error.name or '<package>'}`."
-    ) from error
-
+# gymnax is loaded now (and JAX started): it learns every wrl_jax name.
 registry.register_with_gymnax()
 
 StateT = TypeVar("StateT")
@@ -84,7 +72,7 @@ class Environment(gymnax_environment.Environment, Generic[StateT, ParamsT]):
 
     family: str = ""
     """The family folder under :mod:`wrl_jax.envs` (``"warehouse"``, ``"fleet"``...): which
-    evaluation hook the training driver uses (:mod:`wrl_jax.training.evaluation`)."""
+    evaluation hook the training driver uses (:mod:`wrl_jax.core.evaluation`)."""
 
     num_agents: int | None = None
     """Agents acting in one step. ``None``: a single-agent family (no agent axis). A multi-agent family

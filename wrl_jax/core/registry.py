@@ -8,7 +8,7 @@ gymnax is imported: ``import gymnax`` imports every gymnax environment and
 starts JAX's backend, which ``import wrl_jax`` must not do (a broken corner of
 gymnax would take the whole package down, and XLA's flags could no longer be
 set). :func:`register_with_gymnax` runs when wrl_jax first imports gymnax
-(:mod:`wrl_jax.core.environment`) and on ``import wrl_jax`` if gymnax is
+(:mod:`wrl_jax.core.environment`, through :mod:`wrl_jax.core.gymnax_base`) and on ``import wrl_jax`` if gymnax is
 already loaded; gymnax refuses an id twice, so it checks first.
 
 The one place that lists the built-in names is :mod:`wrl_jax.envs`.
@@ -89,7 +89,7 @@ _EVALUATIONS: dict[str, str] = {}
 
 def register_evaluation(family: str, target: str) -> None:
     """Register a family's evaluation hook (``"module:attribute"``, a
-    :class:`wrl_jax.training.evaluation.FamilyEvaluation`), loaded on first use."""
+    :class:`wrl_jax.core.evaluation.FamilyEvaluation`), loaded on first use."""
     existing = _EVALUATIONS.get(family)
     if existing is not None and existing != target:
         raise ValueError(f"family {family!r} already has the evaluation {existing}")
@@ -116,7 +116,7 @@ def register_with_gymnax() -> list[str]:
     Imports gymnax. Names registered later are added as they come.
     """
     global _GYMNAX_REGISTERED
-    from wrl_jax.core.environment import gymnax
+    from wrl_jax.core.gymnax_base import gymnax
 
     for name in _REGISTRY:
         if GYMNAX_PREFIX + name not in gymnax.registered_envs:

@@ -7,7 +7,7 @@ name is made.
 
 from wrl_jax.core.registry import register, register_evaluation
 
-# Each family's evaluation hook (wrl_jax.training.evaluation.FamilyEvaluation), used by the driver and the CLI.
+# Each family's evaluation hook (wrl_jax.core.evaluation.FamilyEvaluation), used by the driver and the CLI.
 register_evaluation("warehouse", "wrl_jax.envs.warehouse.evaluation:EVALUATION")
 register_evaluation("procedural", "wrl_jax.envs.procedural.evaluation:EVALUATION")
 register_evaluation("fleet", "wrl_jax.envs.fleet.evaluation:EVALUATION")

@@ -1,8 +1,7 @@
 """Training infrastructure every algorithm and environment family shares.
 
-- :mod:`~wrl_jax.training.driver`: ``make_train`` (one program), the chunked
+- :mod:`~wrl_jax.training.driver`: the chunked
   :class:`Trainer` and :func:`run` (progress, metrics, checkpoints, exact resume);
-- :mod:`~wrl_jax.training.evaluation`: the family evaluation hook the driver calls;
 - :mod:`~wrl_jax.training.metrics_io`: JSONL/CSV/TensorBoard metrics and plots;
 - :mod:`~wrl_jax.training.checkpoint`: atomic checkpoints;
 - :mod:`~wrl_jax.training.sharding`, :mod:`~wrl_jax.training.sweep`: devices and sweeps.
@@ -19,8 +18,6 @@ from wrl_jax.training.driver import (
     Trainer,
     final_evaluation,
     install_sigterm_handler,
-    make_train,
-    make_train_seeds,
     run,
     seed_keys,
 )
@@ -34,8 +31,6 @@ __all__ = [
     "Trainer",
     "final_evaluation",
     "install_sigterm_handler",
-    "make_train",
-    "make_train_seeds",
     "run",
     "seed_keys",
 ]

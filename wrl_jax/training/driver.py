@@ -2,9 +2,9 @@
 
 Two shapes of the same loop:
 
-- :func:`make_train` / :func:`make_train_seeds`: PureJaxRL's shape. ``train(key)``
-  is ``init`` followed by one ``lax.scan`` of ``update`` over all updates, a
-  single pure function to ``jit`` (and ``vmap`` over seeds or sweep points).
+- :func:`~wrl_jax.agents.base.make_train` / ``make_train_seeds``: PureJaxRL's shape, beside the
+  algorithm contract. ``train(key)`` is ``init`` followed by one ``lax.scan`` of ``update`` over all
+  updates, a single pure function to ``jit`` (and ``vmap`` over seeds or sweep points).
 - :class:`Trainer` and :func:`run`: the same updates for a batch of seeds, cut
   into *chunks*: one jitted function scans a fixed number of updates (compiled
   once, ahead of time, so compile time is measured apart), and a Python loop
@@ -19,7 +19,7 @@ Periodic greedy evaluation runs *inside* the compiled chunk, every
 ``eval_every`` updates and after the last one (a ``lax.cond`` on the update
 index, so it costs nothing on the other updates): the greedy policy of every
 seed, evaluated by the environment family's hook
-(:mod:`wrl_jax.training.evaluation`; for the warehouse, every item index). Its
+(:mod:`wrl_jax.core.evaluation`; for the warehouse, every item index). Its
 per-seed results become ``eval_*`` metrics, and the first update at which a seed
 *solves* the task (the hook's ``solved_key``: for the warehouse, every item
 delivered at the BFS optimum) gives that seed's *convergence step*.
@@ -32,9 +32,8 @@ and ``mean_length`` of the training episodes that ended in the group, and for
 a multi-agent environment ``train_throughput`` (its agents' deliveries per
 environment step, from ``deliveries_sum``).
 
-Why one module of this length: ``make_train``, :class:`Trainer` and :func:`run`
-are one loop in three shapes that must stay bit-identical (tested), and they
-read best side by side.
+Why one module of this length: :class:`Trainer` and :func:`run` are one loop
+that must stay bit-identical to ``make_train`` (tested), and read best side by side.
 """
 
 from __future__ import annotations
@@ -54,41 +53,11 @@ import numpy as np
 from flax import struct
 
 from wrl_jax.training import checkpoint, metrics_io
-from wrl_jax.training import evaluation as family_evaluation
+from wrl_jax.core import evaluation as family_evaluation
 from wrl_jax.agents.base import Algorithm, EpisodeSums
 
 SUM_METRICS = frozenset(f.name for f in dataclasses.fields(EpisodeSums))
 """Metrics that are sums over episodes; a log group adds them (so do keys ending in ``_sum``)."""
-
-
-# ------------------------------------------------------------ PureJaxRL shape
-def make_train(algo: Algorithm, num_updates: int | None = None) -> Callable[..., tuple[Any, dict]]:
-    """``train(key, hyper=None, env_params=None) -> (runner, metrics)`` for one seed.
-
-    ``init`` then ``lax.scan`` of ``update`` over ``num_updates`` updates (the
-    algorithm's full run by default). ``metrics`` leaves have a leading update
-    axis. Pure: ``jax.jit`` it, or ``jax.vmap`` it over keys (:func:`make_train_seeds`)
-    and over traced hyperparameters for a sweep.
-
-    The initial runner passes through an optimization barrier: without it XLA
-    fuses the initialisation arithmetic into the first update, and on CPUs
-    with FMA/AVX-512 the contracted multiply-adds round differently from the
-    chunked driver (which initialises in its own program), so the two would
-    differ in the last bits. With it, this one program equals the driver bit
-    for bit (``tests/test_training.py``).
-    """
-    num_updates = algo.num_updates if num_updates is None else int(num_updates)
-
-    def train(key: jax.Array, hyper: Any = None, env_params: Any = None):
-        runner = jax.lax.optimization_barrier(algo.init(key, hyper, env_params))
-        return jax.lax.scan(algo.update, runner, jnp.arange(num_updates, dtype=jnp.int32))
-
-    return train
-
-
-def make_train_seeds(algo: Algorithm, num_updates: int | None = None) -> Callable[[jax.Array], tuple[Any, dict]]:
-    """:func:`make_train` ``vmap``-ped over a batch of keys (one per seed); the update index stays unbatched."""
-    return jax.vmap(make_train(algo, num_updates))
 
 
 def seed_keys(seeds: Sequence[int]) -> jax.Array:

@@ -36,7 +36,7 @@ environment's ``max_steps``, a scan length, at every point: a grid over the
 fleet's ``max_steps`` changes training episodes, not the evaluation's.)
 
 Results come from the family's evaluation hook
-(:class:`~wrl_jax.training.evaluation.FamilyEvaluation`): its
+(:class:`~wrl_jax.core.evaluation.FamilyEvaluation`): its
 ``sweep_columns`` name the headline metrics of its per-seed summary (the
 warehouse: greedy success, optimal items, steps, return; the fleet:
 throughput, ratio to PIBT, blocks per robot per 100 steps; the procedural
@@ -284,7 +284,7 @@ class Sweep:
         return hyper, env_params
 
     def describe(self) -> dict[str, Any]:
-        from wrl_jax.cli import options as cli_options
+        from wrl_jax.agents.base import config_to_dict
 
         return {
             "algo": self.spec.name,
@@ -294,7 +294,7 @@ class Sweep:
             "seeds": self.seeds,
             "num_points": len(self.points),
             "batch": len(self.points) * len(self.seeds),
-            "config": cli_options.config_to_dict(self.config),
+            "config": config_to_dict(self.config),
         }
 
 
@@ -304,7 +304,7 @@ def default_columns(summary_rows: list[dict[str, Any]]) -> Any:
 
     A new family's sweep works before anyone chooses its headline metrics.
     """
-    from wrl_jax.training.evaluation import SweepColumns, SweepMetric
+    from wrl_jax.core.evaluation import SweepColumns, SweepMetric
 
     first = summary_rows[0] if summary_rows else {}
     keys = [k for k, v in first.items()
@@ -345,7 +345,7 @@ def _solved_flags(evaluation: Any, episodes: Any) -> list[bool]:
 class SweepResult:
     """What :func:`run_sweep` returns: the driver's result plus the per-point tables.
 
-    ``columns`` (a :class:`~wrl_jax.training.evaluation.SweepColumns`) names the
+    ``columns`` (a :class:`~wrl_jax.core.evaluation.SweepColumns`) names the
     family's metrics in ``per_seed`` and ``per_point``; ``solved_definition`` is the
     family's, for the convergence column.
     """
@@ -469,27 +469,15 @@ def _finite(value: Any) -> float | None:
     return None if math.isnan(value) else value
 
 
-# The outputs and the command line live in their own modules; re-exported for ``wrl_jax.sweep`` users.
-from wrl_jax.training.sweep_outputs import plot_sweep, results_markdown, write_outputs  # noqa: E402
-from wrl_jax.cli.sweep import build_parser, main, parse_grid, parse_sets, parse_value  # noqa: E402
-
 __all__ = [
     "StaticFieldError",
     "Sweep",
     "SweepResult",
-    "build_parser",
     "default_columns",
     "hyper_for",
     "is_traced_env_field",
-    "main",
-    "parse_grid",
-    "parse_sets",
-    "parse_value",
-    "plot_sweep",
-    "results_markdown",
     "run_sweep",
     "traced_env_fields",
     "traced_fields",
     "training_values",
-    "write_outputs",
 ]

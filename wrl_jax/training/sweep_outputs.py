@@ -45,7 +45,7 @@ def _metric_cell(metric: Any, point: dict[str, Any], num_seeds: int, key: str | 
 def results_markdown(result: SweepResult) -> str:
     """The per-point table: greedy evaluation after training, mean ± 95 % CI over seeds.
 
-    The columns are the family's (:class:`~wrl_jax.training.evaluation.SweepColumns`):
+    The columns are the family's (:class:`~wrl_jax.core.evaluation.SweepColumns`):
     its evaluation metrics, its training metrics, then the generic convergence column.
     """
     from wrl_jax.training.sweep import train_column

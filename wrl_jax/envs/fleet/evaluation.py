@@ -31,7 +31,7 @@ from flax import struct
 
 from wrl_jax.envs.fleet import metrics
 from wrl_jax.stats import mean_ci
-from wrl_jax.training.evaluation import FamilyEvaluation, FinalContext, SweepColumns, SweepMetric
+from wrl_jax.core.evaluation import FamilyEvaluation, FinalContext, SweepColumns, SweepMetric
 
 EVAL_SEED = 0
 """``python -m wrl_jax.plan``'s default ``--seed``: the evaluation's shifts are the planners'."""
@@ -320,4 +320,4 @@ EVALUATION = FamilyEvaluation(
         convergence_label="first step >= PIBT",
     ),
 )
-"""The fleet family's evaluation hook (:mod:`wrl_jax.training.evaluation`)."""
+"""The fleet family's evaluation hook (:mod:`wrl_jax.core.evaluation`)."""

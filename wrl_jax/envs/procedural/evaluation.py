@@ -52,7 +52,7 @@ from wrl_jax.envs.procedural.movingai import is_movingai, load_map, movingai_lay
 from wrl_jax.envs.procedural.pool import LayoutPool, disjoint_from, generate_pool, pool_hashes, pool_of
 from wrl_jax.envs.warehouse.layout import parse
 from wrl_jax.envs.warehouse.maps import WAREHOUSE_8X8, WAREHOUSE_12X12
-from wrl_jax.training.evaluation import FamilyEvaluation, FinalContext, SweepColumns, SweepMetric
+from wrl_jax.core.evaluation import FamilyEvaluation, FinalContext, SweepColumns, SweepMetric
 
 EVAL_SEED = 2026
 EVAL_LAYOUTS = 64

@@ -23,7 +23,7 @@ What one episode records (:class:`EpisodeEval`) and how it is judged:
   the goal", separately from how well the first leg was driven.
 
 This is the warehouse family's evaluation hook (:data:`EVALUATION`, see
-:mod:`wrl_jax.training.evaluation`): the training driver and the CLI reach it
+:mod:`wrl_jax.core.evaluation`): the training driver and the CLI reach it
 through ``env.family`` and know nothing of items. The same function serves the
 periodic evaluation inside the compiled training
 loop (:func:`seed_summary`, per-seed scalars) and the final report
@@ -44,7 +44,7 @@ from flax import struct
 from wrl_jax.envs.warehouse import routes
 from wrl_jax.envs.warehouse.env import Warehouse
 from wrl_jax.envs.warehouse.types import EnvParams
-from wrl_jax.training.evaluation import FamilyEvaluation, SweepColumns, SweepMetric
+from wrl_jax.core.evaluation import FamilyEvaluation, SweepColumns, SweepMetric
 
 GreedyFn = Callable[[Any, jax.Array], jax.Array]
 """``greedy_action(network_params, obs) -> action`` for one observation."""
@@ -343,4 +343,4 @@ EVALUATION = FamilyEvaluation(
                          "optimum",
     ),
 )
-"""The warehouse family's evaluation hook (:mod:`wrl_jax.training.evaluation`)."""
+"""The warehouse family's evaluation hook (:mod:`wrl_jax.core.evaluation`)."""
