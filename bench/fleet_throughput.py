@@ -20,7 +20,7 @@ same load on a shared machine), on ``Fleet-12x12-v0`` (FLEET_SPEC.md):
 * ``numpy reference``: :class:`wrl_jax.envs.fleet.reference.FleetReference`,
   one env in a Python loop, random actions, and with NumPy PIBT actions;
 * planner alone: the jitted, vmapped JAX PIBT on a batch of recorded fleet
-  states (with the planners' XLA options, and again with XLA's defaults) against the NumPy PIBT of ``tests/test_fleet_planners.py`` (the
+  states (with the planners' XLA options, and again with XLA's defaults) against the NumPy PIBT of ``tests/envs/fleet/test_fleet_planners.py`` (the
   recursive one the tests check the JAX PIBT against, move for move) on the same states;
 * POGEMA (``pogema`` 1.4.0, lifelong mode ``on_target="restart"``) on the same
   12x12 map (shelves as obstacles; POGEMA places robots and targets itself),
@@ -97,7 +97,7 @@ POGEMA_PYTHON = "/tmp/pogema-venv/bin/python"
 
 def numpy_planners():
     """The NumPy PIBT and greedy of the tests (imported from the file, which is not a package)."""
-    spec = importlib.util.spec_from_file_location("fleet_planner_tests", ROOT / "tests" / "test_fleet_planners.py")
+    spec = importlib.util.spec_from_file_location("fleet_planner_tests", ROOT / "tests" / "envs" / "fleet" / "test_fleet_planners.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

@@ -23,7 +23,7 @@ then ``--repeats`` timed calls, each ``block_until_ready``-ed, median reported):
      from bit masks of the episode's packed floor rows);
    * ``procedural-scalars``: the same with ``observe_window=False`` (the five scalars only): per-env
      layouts without the window, to separate the two costs;
-   * ``procedural-memory``: ``procedural`` with PPO's preset observation (``ppo.PROCEDURAL_ENV_DEFAULTS``:
+   * ``procedural-memory``: ``procedural`` with PPO's preset observation (``ppo_config.PROCEDURAL_ENV_DEFAULTS``:
      the previous action and the trail channel counting visits, 109 values), what ``train_ppo.py`` steps;
    * ``procedural-last-action`` and ``procedural-trail``: ``procedural`` with the previous action alone, and
      with the yes/no trail alone, to separate what each part of the memory costs.
@@ -58,7 +58,7 @@ import numpy as np
 
 import wrl_jax
 from wrl_jax.envs.warehouse import maps
-from wrl_jax.agents.ppo import PROCEDURAL_ENV_DEFAULTS
+from wrl_jax.agents.ppo_config import PROCEDURAL_ENV_DEFAULTS
 from wrl_jax.envs.procedural import generators
 from wrl_jax.envs.procedural.layout import from_layout
 from wrl_jax.envs.procedural.pool import (

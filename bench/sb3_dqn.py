@@ -257,7 +257,8 @@ def main() -> int:
     import jax
     import torch
 
-    from wrl_jax.agents.dqn import PRESETS, make_algorithm
+    from wrl_jax.agents.dqn_config import PRESETS
+    from wrl_jax.agents.dqn import make_algorithm
     from wrl_jax.agents.networks import measured_matmul_peak_gflops
 
     config = PRESETS[args.preset]

@@ -92,7 +92,7 @@ def _onehot_wrapper(gym, env, size: int):
     from gymnasium import spaces
 
     class OneHot(gym.ObservationWrapper):
-        """The one-hot coordinate encoding of ``wrl_jax.agents.ppo.encode_observation``, in NumPy."""
+        """The one-hot coordinate encoding of ``wrl_jax.agents.encoding.encode_observation``, in NumPy."""
 
         def __init__(self, inner):
             super().__init__(inner)
@@ -217,7 +217,7 @@ def main() -> int:
                         help="torch intra-op threads for SB3 (1 is fastest for these small networks on 2 cores)")
     args = parser.parse_args()
 
-    from wrl_jax.agents.ppo import PRESETS
+    from wrl_jax.agents.ppo_config import PRESETS
 
     config = PRESETS[args.preset]
     if args.total_timesteps:

@@ -49,23 +49,23 @@ import numpy as np  # noqa: E402
 import wrl_jax  # noqa: E402
 from wrl_jax import training  # noqa: E402
 from wrl_jax.agents.base import config_to_dict, make_train, make_train_seeds  # noqa: E402
-from wrl_jax.agents import dqn, ppo  # noqa: E402
+from wrl_jax.agents import dqn, dqn_config, ppo, ppo_config  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def bench_configs(ppo_updates: int, dqn_updates: int, dqn_paper_updates: int) -> dict:
     """The default presets (and DQN's paper preset), cut to a fixed number of updates per seed."""
-    p = ppo.DEFAULT
+    p = ppo_config.DEFAULT
     p = dataclasses.replace(p, total_timesteps=ppo_updates * p.steps_per_update)
-    d = dqn.DEFAULT
+    d = dqn_config.DEFAULT
     total = dqn_updates * d.steps_per_update
     # The replay buffer holds the whole run (it never wraps: the same algorithm as
     # with 100,000) so that 128 seeds' buffers are not mostly unused memory.
     d = d.replace(total_timesteps=total, buffer_size=total)
     # The study's DQN: one environment, one gradient step on 128 samples every 4 steps.
     # Little work per kernel, so batching seeds is where the gain is.
-    dp = dqn.PAPER
+    dp = dqn_config.PAPER
     total = dqn_paper_updates * dp.steps_per_update
     dp = dp.replace(total_timesteps=total, buffer_size=total)
     return {

@@ -52,6 +52,7 @@ class Algorithm(abc.ABC, Generic[RunnerT]):
     name: ClassVar[str]
 
     def __init__(self, config: Any, env: Environment, env_params: Any):
+        config.validate()  # every algorithm, the same way: a ValueError naming the field, before anything compiles
         self.config = config
         self.env = env
         self.env_params = env_params
@@ -231,7 +232,7 @@ def make_train(algo: Algorithm, num_updates: int | None = None) -> Callable[...,
     with FMA/AVX-512 the contracted multiply-adds round differently from the
     chunked driver (which initialises in its own program), so the two would
     differ in the last bits. With it, this one program equals the driver bit
-    for bit (``tests/test_training.py``).
+    for bit (``tests/training/test_training.py``).
     """
     num_updates = algo.num_updates if num_updates is None else int(num_updates)
 

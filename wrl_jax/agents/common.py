@@ -95,3 +95,12 @@ def clip_by_global_norm(grads: Any, max_norm: jax.Array) -> tuple[Any, jax.Array
     norm = jnp.sqrt(functools.reduce(jnp.add, [jnp.sum(jnp.square(leaf)) for leaf in leaves]))
     scale = jnp.where(norm > max_norm, max_norm / norm, 1.0)
     return jax.tree.map(lambda g: g * scale, grads), norm
+
+
+def polyak_update(target: Any, online: Any, tau: jax.Array) -> Any:
+    """A target network moved towards the online one: ``tau * online + (1 - tau) * target`` per leaf.
+
+    ``tau = 1`` copies (DQN's hard update); a small ``tau`` is the soft update of DQN's default,
+    SAC and TD3. ``tau`` may be traced (a sweep varies it).
+    """
+    return jax.tree.map(lambda t, o: tau * o + (1.0 - tau) * t, target, online)

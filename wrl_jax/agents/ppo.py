@@ -26,15 +26,13 @@ Stable-Baselines3 with default settings (no ``VecNormalize``) does not scale.
 Static fields of :class:`PPOConfig` fix shapes or program structure; the traced
 ones (:class:`PPOHyper`) live in the runner state, so a sweep can ``vmap`` them.
 
-Why one module of this length: config, presets (the study's Table 2 and our
-measured defaults), runner state, the update, the network parameterization
-and the FLOP count are one algorithm, readable top to bottom as PureJaxRL's is;
+The settings and presets are :mod:`wrl_jax.agents.ppo_config`, the observation
+encodings :mod:`wrl_jax.agents.encoding`, the initialiser :mod:`wrl_jax.agents.initializers`;
 what PPO shares with DQN lives in :mod:`wrl_jax.agents.common`.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import Any
 
@@ -47,151 +45,23 @@ from wrl_jax.agents.base import (
     AlgoSpec,
     Algorithm,
     EpisodeStats,
-    observation_size,
     sum_episode_sums,
     track_episodes,
 )
-from wrl_jax.agents.common import (
-    check_hidden_sizes,
-    check_hyper,
-    check_positive_ints,
-    clip_by_global_norm,
-    hyper_from_config,
-    linear_decay,
-    traced_fields,
-)
+from wrl_jax.agents.common import clip_by_global_norm, linear_decay
 from wrl_jax.agents import base, propagation
+from wrl_jax.agents.encoding import agent_observation_size, encoded_size, onehot_coordinates, onehot_rows
+from wrl_jax.agents.initializers import init_mlp_params
 from wrl_jax.agents.networks import ACTIVATIONS, mlp_forward_flops
+from wrl_jax.agents.ppo_config import (
+    FLEET_ENV_DEFAULTS,
+    PRESETS,
+    PROCEDURAL_ENV_DEFAULTS,
+    STUDY_TABLE3,
+    PPOConfig,
+    PPOHyper,
+)
 from wrl_jax.core.environment import Environment
-
-
-@dataclasses.dataclass(frozen=True)
-class PPOConfig:
-    """PPO settings. Defaults are the tuned ``default`` preset (see :data:`PRESETS`).
-
-    Static (shapes and program structure):
-        num_envs: environments stepped in parallel per seed.
-        num_steps: rollout length per environment per update.
-        num_minibatches: minibatches per epoch (must divide ``num_envs * num_steps``).
-        update_epochs: passes over each rollout.
-        hidden_sizes: hidden widths of both the actor and the critic MLP (separate networks).
-        activation: ``"tanh"`` or ``"relu"``.
-        total_timesteps: environment steps per seed; ``num_updates = total // (num_envs * num_steps)``.
-        obs_encoding: what the networks see. ``"raw"``: the 7 observation values
-            (the study's MLP). ``"onehot"``: each coordinate of the observation
-            decoded back to its cell index and one-hot encoded (N + 1 values
-            per coordinate, the extra one for "picked up"), plus the carrying
-            flag: the same information, in a form an MLP separates linearly.
-        anneal_lr: decay the learning rate linearly to 0 over the updates.
-        anneal_ent: decay the entropy coefficient linearly to 0 over the updates
-            (explore early, sharpen the policy whose argmax is evaluated late).
-        normalize_advantages: standardize advantages within each minibatch.
-        bootstrap_truncated: bootstrap a time-limit truncation from the value of
-            the state it reached (correct); ``False`` treats it as termination
-            (the common bug, kept to show the difference).
-        critic: multi-agent environments only (the fleet). ``"local"``: IPPO, the
-            critic sees each robot's own observation; ``"centralized"``: MAPPO,
-            the critic sees the robot's observation and the environment's
-            global state (``env.global_state``), the actor still only its own.
-        encoder: ``"mlp"``: the observation straight into the MLPs. ``"propagation"``:
-            environments whose observation holds a map (``env.map_observation()``,
-            e.g. ``Procedural-Warehouse-v0`` with ``observe_map=True``): values are first
-            propagated from the target over the map with learned costs (the actor's
-            parameters, :mod:`wrl_jax.agents.propagation`), and both MLPs see the rest
-            of the observation and the values around the robot instead of the map.
-        propagation_rounds: rounds of that propagation (the longest path it sees, in moves).
-
-    Traced (vmappable, :class:`PPOHyper`):
-        learning_rate, gamma, gae_lambda, clip_eps, ent_coef, vf_coef, max_grad_norm, reward_scale.
-    """
-
-    num_envs: int = 64
-    num_steps: int = 32
-    num_minibatches: int = 4
-    update_epochs: int = 4
-    hidden_sizes: tuple[int, ...] = (64, 64)
-    activation: str = "tanh"
-    obs_encoding: str = "onehot"
-    total_timesteps: int = 600_000  # 292 updates; 300,000 left 3-4 seeds in 32 one item 2 steps long (docs/ppo.md)
-    anneal_lr: bool = True
-    anneal_ent: bool = True
-    normalize_advantages: bool = True
-    bootstrap_truncated: bool = True
-    critic: str = "local"
-    encoder: str = "mlp"
-    propagation_rounds: int = 48
-    learning_rate: float = 0.01
-    gamma: float = 0.95
-    gae_lambda: float = 0.6
-    clip_eps: float = 0.2
-    ent_coef: float = 0.2
-    vf_coef: float = 0.5
-    max_grad_norm: float = 0.5
-    reward_scale: float = 0.01
-
-    @property
-    def steps_per_update(self) -> int:
-        return self.num_envs * self.num_steps
-
-    @property
-    def num_updates(self) -> int:
-        return self.total_timesteps // self.steps_per_update
-
-    @property
-    def minibatch_size(self) -> int:
-        return self.steps_per_update // self.num_minibatches
-
-    def hyper(self, **overrides: Any) -> "PPOHyper":
-        """The traced hyperparameters (:class:`PPOHyper`), any of them overridden (a sweep's arrays)."""
-        return hyper_from_config(PPOHyper, self, "PPO", **overrides)
-
-    def validate(self) -> None:
-        """Raise ``ValueError`` naming the first problem; called before anything is compiled."""
-        positive = ("num_envs", "num_steps", "num_minibatches", "update_epochs", "total_timesteps",
-                    "propagation_rounds")
-        check_positive_ints("PPO", self, positive)
-        check_hidden_sizes("PPO", self.hidden_sizes)
-        if self.obs_encoding not in OBS_ENCODINGS:
-            raise ValueError(f"PPO obs_encoding must be one of {OBS_ENCODINGS}, got {self.obs_encoding!r}")
-        if self.encoder not in ENCODERS:
-            raise ValueError(f"PPO encoder must be one of {ENCODERS}, got {self.encoder!r}")
-        if self.encoder == "propagation" and self.obs_encoding != "raw":
-            raise ValueError("PPO encoder='propagation' needs obs_encoding='raw' (it reads the map from the raw values)")
-        if self.encoder == "propagation" and self.critic != "local":
-            raise ValueError("PPO encoder='propagation' is for single-robot environments: use critic='local'")
-        if self.critic not in CRITICS:
-            raise ValueError(f"PPO critic must be one of {CRITICS}, got {self.critic!r}")
-        if self.activation not in ACTIVATIONS:
-            raise ValueError(f"PPO activation must be one of {sorted(ACTIVATIONS)}, got {self.activation!r}")
-        if self.steps_per_update % self.num_minibatches:
-            raise ValueError(
-                f"PPO batch of num_envs * num_steps = {self.num_envs} * {self.num_steps} = {self.steps_per_update} "
-                f"is not divisible into num_minibatches={self.num_minibatches}"
-            )
-        if self.total_timesteps < self.steps_per_update:
-            raise ValueError(
-                f"PPO total_timesteps={self.total_timesteps} is less than one update "
-                f"(num_envs * num_steps = {self.steps_per_update})"
-            )
-        check_hyper("PPO", **{name: getattr(self, name) for name in traced_fields(PPOHyper)})
-
-
-@struct.dataclass
-class PPOHyper:
-    """The traced hyperparameters (float32 scalars, or batched along a sweep axis).
-
-    These fields are the one declaration of what is traced; every other
-    :class:`PPOConfig` field is static.
-    """
-
-    learning_rate: jax.Array
-    gamma: jax.Array
-    gae_lambda: jax.Array
-    clip_eps: jax.Array
-    ent_coef: jax.Array
-    vf_coef: jax.Array
-    max_grad_norm: jax.Array
-    reward_scale: jax.Array
 
 
 @struct.dataclass
@@ -225,9 +95,6 @@ AGENT_EVENTS = {"delivered": "deliveries_sum", "robot_block": "robot_blocks_sum"
 """Per-agent info flags a multi-agent rollout counts (where the env has them), and their metric names."""
 
 
-OBS_ENCODINGS = ("raw", "onehot")
-ENCODERS = ("mlp", "propagation")
-CRITICS = ("local", "centralized")
 _ADAM_EPS = 1e-5  # as in Stable-Baselines3 and CleanRL
 
 
@@ -237,7 +104,6 @@ class PPO(Algorithm[PPORunner]):
     name = "ppo"
 
     def __init__(self, config: PPOConfig, env: Environment, env_params: Any):
-        config.validate()
         super().__init__(config, env, env_params)
         self.activation = ACTIVATIONS[config.activation]
         self.adam = optax.scale_by_adam(eps=_ADAM_EPS)
@@ -556,61 +422,6 @@ class PPO(Algorithm[PPORunner]):
         return rollout + values + train
 
 
-def agent_observation_size(env: Environment) -> int:
-    """Width of one agent's flat observation: the whole observation for a single-agent env."""
-    if getattr(env, "num_agents", None) is None:
-        return observation_size(env)
-    return int(math.prod(env.observation_space().shape[1:]))
-
-
-def onehot_coordinates(env: Environment, encoding: str) -> tuple[int, int, int, int] | None:
-    """The env's cell coordinates (``env.onehot_coordinates()``) for ``"onehot"``; ``None`` for ``"raw"``."""
-    if encoding == "raw":
-        return None
-    coordinates = env.onehot_coordinates() if hasattr(env, "onehot_coordinates") else None
-    if coordinates is None:
-        raise ValueError(
-            f"obs_encoding='onehot' one-hot encodes an observation's grid coordinates; {env.name} (a "
-            f"{getattr(env, 'family', '?')!r} environment) does not declare any: use obs_encoding='raw'"
-        )
-    return coordinates
-
-
-def encoded_size(env: Environment, encoding: str) -> int:
-    """Width of :func:`encode_observation`'s output (per agent)."""
-    size = agent_observation_size(env)
-    if encoding == "raw":
-        return size
-    count, values, _, _ = onehot_coordinates(env, encoding)
-    return count * values + (size - count)
-
-
-def encode_observation(obs: jax.Array, env: Environment, encoding: str) -> jax.Array:
-    """The network input as a vector: ``"raw"``: ``obs`` itself; ``"onehot"``: every
-    coordinate one-hot over its values (for the warehouse ``i / (N - 1)``, ``i`` in
-    -1..N-1, over N + 1 values), then the rest of the observation unchanged.
-    ``PPO.forward`` computes the first layer on it without building it."""
-    if encoding == "raw":
-        return obs
-    coordinates = onehot_coordinates(env, encoding)
-    count, values = coordinates[0], coordinates[1]
-    onehot = jax.nn.one_hot(onehot_rows(obs, coordinates), count * values, dtype=jnp.float32).sum(axis=-2)
-    return jnp.concatenate([onehot, obs[..., count:]], axis=-1)
-
-
-def onehot_rows(obs: jax.Array, coordinates: tuple[int, int, int, int]) -> jax.Array:
-    """Where the 1s of :func:`encode_observation` are: ``(..., count)`` int32 indices.
-
-    ``coordinates = (count, values, offset, scale)`` (``env.onehot_coordinates()``).
-    Coordinate ``c`` with cell index ``i`` lands at ``c * values + i + offset``; for
-    the warehouse (``offset`` 1 for a picked-up item's ``-1``) ``round(x * (N - 1))``
-    recovers ``i`` exactly: the observation is the float32 nearest to ``i / (N - 1)``.
-    """
-    count, values, offset, scale = coordinates
-    cells = jnp.round(obs[..., :count] * scale).astype(jnp.int32) + offset
-    return cells + jnp.arange(count, dtype=jnp.int32) * values
-
-
 def gae(
     reward: jax.Array,
     value: jax.Array,
@@ -640,167 +451,6 @@ def gae(
     _, advantages = jax.lax.scan(backward, jnp.zeros_like(delta[0]), (delta, not_done), reverse=True)
     return advantages
 
-
-def init_mlp_params(key: jax.Array, networks: list[tuple[int, tuple[int, ...], int, float]]) -> list[dict]:
-    """Parameters of several :class:`~wrl_jax.agents.networks.MLP` s, as ``MLP.init`` lays them out.
-
-    Each network is ``(input_size, hidden_sizes, output_size, output_init_scale)``.
-    Kernels are orthogonal (gain sqrt(2) on hidden layers, the given scale on the
-    output), biases zero: the distribution of ``MLP.init``. Two differences, both
-    for the 2-core CPU:
-
-    - all the Gaussian draws come from one ``jax.random.normal`` call; one call
-      per layer (as ``MLP.init`` does) makes XLA compile a copy of the threefry
-      hash per layer, seconds of compile time;
-    - the orthogonalization is Gram-Schmidt in plain XLA ops, not LAPACK's QR:
-      under ``vmap`` over seeds, jaxlib 0.10.2 runs batched QR kernels on the
-      intra-op thread pool, and two of them running at once (two layers) can
-      deadlock a 2-thread pool for good.
-    """
-    shapes = []
-    for input_size, hidden, output_size, output_scale in networks:
-        widths = [input_size, *hidden, output_size]
-        gains = [math.sqrt(2.0)] * len(hidden) + [output_scale]
-        shapes.append([(a, b, g) for a, b, g in zip(widths[:-1], widths[1:], gains)])
-    sizes = [a * b for layers in shapes for a, b, _ in layers]
-    noise = jax.random.normal(key, (sum(sizes),), jnp.float32)
-    out, offset = [], 0
-    for layers in shapes:
-        params = {}
-        for layer, (a, b, gain) in enumerate(layers):
-            gaussian = noise[offset : offset + a * b].reshape(max(a, b), min(a, b))
-            offset += a * b
-            q = orthonormal_columns(gaussian)
-            kernel = q if a >= b else q.T
-            params[f"Dense_{layer}"] = {"kernel": gain * kernel, "bias": jnp.zeros((b,), jnp.float32)}
-        out.append({"params": params})
-    return out
-
-
-def orthonormal_columns(a: jax.Array) -> jax.Array:
-    """The Q of ``a = QR`` with R's diagonal positive (``a``: rows >= cols), by Gram-Schmidt.
-
-    Classical Gram-Schmidt applied twice per column ("CGS2"), which is as
-    accurate as Householder QR for the well-conditioned Gaussian matrices of an
-    initializer. For a Gaussian ``a``, Q is Haar-distributed (uniform over
-    matrices with orthonormal columns), exactly what ``orthogonal`` initializers draw.
-    """
-    rows, cols = a.shape
-    if rows < cols:
-        raise ValueError(f"orthonormal_columns needs rows >= cols, got {a.shape}")
-    column_index = jnp.arange(cols)
-
-    def add_column(j, q):
-        v = jax.lax.dynamic_index_in_dim(a, j, axis=1, keepdims=False)
-        previous = q * (column_index < j)  # the columns already done
-        for _ in range(2):
-            v = v - previous @ (previous.T @ v)
-        v = v / jnp.sqrt(jnp.sum(v * v))
-        return jax.lax.dynamic_update_index_in_dim(q, v, j, axis=1)
-
-    return jax.lax.fori_loop(0, cols, add_column, jnp.zeros_like(a))
-
-
-# -------------------------------------------------------------------- presets
-PAPER = PPOConfig(
-    # The study's Table 2 for PPO on 12x12:
-    learning_rate=3e-4,
-    hidden_sizes=(256, 256),
-    gamma=0.99,
-    num_envs=8,
-    num_steps=1024,
-    update_epochs=10,
-    ent_coef=0.02,
-    clip_eps=0.2,
-    total_timesteps=600_000,
-    # What the table omits, as Stable-Baselines3's PPO defaults would have it:
-    gae_lambda=0.95,
-    num_minibatches=128,  # SB3 batch_size=64 -> 8192 / 64
-    vf_coef=0.5,
-    max_grad_norm=0.5,
-    activation="tanh",  # SB3 MlpPolicy's activation_fn
-    obs_encoding="raw",  # the 7 observation values straight into the MLP
-    anneal_lr=False,  # SB3's constant learning rate
-    anneal_ent=False,  # and constant entropy coefficient
-    normalize_advantages=True,  # SB3 normalizes per minibatch
-    reward_scale=1.0,  # SB3 without VecNormalize sees the raw rewards
-)
-"""The study's exact setting (Table 2), completed with SB3 2.x PPO defaults."""
-
-DEFAULT = PPOConfig()
-"""Ours, for Warehouse-12x12-v0 on a 2-core CPU; chosen on seeds 2000-2031, validated on 1000-1031 (docs/ppo.md)."""
-
-PROCEDURAL = dataclasses.replace(
-    DEFAULT,
-    obs_encoding="raw",  # the egocentric window and positions: the one-hot encoding is the study maps' coordinates
-    hidden_sizes=(128, 128),
-    learning_rate=3e-3,
-    gamma=0.97,
-    gae_lambda=0.9,
-    ent_coef=0.0,  # no entropy bonus: a sharper policy trains closer to the greedy one that is evaluated
-    total_timesteps=2_500_000,  # 1,220 updates; 4 seeds in 11 minutes on the shared 2-core CPU
-)
-"""The default for ``Procedural-Warehouse-v0`` (docs/procedural.md has the runs that chose it).
-
-With the observation of :data:`PROCEDURAL_ENV_DEFAULTS`, seeds 0-3: 99.3 % of 1,024 held-out layouts'
-episodes delivered greedily (99.2-99.4 % per seed), 8.2 % mean excess over the BFS optimum, 6 min 23 s;
-with a yes/no trail 97.7 % and 6.1 %; with the previous action alone 95.2 % and 6.8 %; with the plain
-robot observation 78 % and 1.7 % (the greedy policy oscillated between two cells)."""
-
-PROCEDURAL_ENV_DEFAULTS = {"observe_last_action": True, "observe_visited": True, "visit_levels": 3}
-"""What ``python train_ppo.py --env Procedural-Warehouse-v0`` changes in the environment unless told otherwise.
-
-Memory of the robot's own moves, appended to the robot observation: its previous action, one-hot, and a
-window channel counting its visits to each cell (up to 3) since its current target was set. A memoryless
-greedy policy with a 5x5 window meets the same observation at both cells of a dead end whose far wall it
-sees from one of them only, and went back and forth there on 22 % of held-out episodes; with a yes/no
-trail a loop looks the same on every lap once it is marked, and 2.3 % of episodes still looped; counts
-make every lap look different (docs/procedural.md). Not planner features: the robot's own trail.
-``--observe-last-action False --observe-visited False --visit-levels 1`` trains on the plain observation."""
-
-FLEET = dataclasses.replace(
-    DEFAULT,
-    num_envs=32,  # x K robots: every robot's observation is a row of the batch (IPPO)
-    num_steps=64,
-    obs_encoding="onehot",  # own and target row and col one-hot, then the carrying flag and the window
-    update_epochs=2,  # half the gradient work of an update: more, cheaper updates in the same wall time
-    total_timesteps=2_621_440,  # 1,280 updates: 4 seeds in 10 minutes on the 2-core CPU
-)
-"""IPPO for ``Fleet-12x12-v0`` (the default there, with the block penalty of :data:`FLEET_ENV_DEFAULTS`);
-docs/fleet_training.md has what it reaches against PIBT (with the observation of :data:`FLEET_ENV_DEFAULTS`,
-8 of 8 seeds above it at K = 4 and at 95 % of it or more at K = 8, in about 3 and 6.5 minutes on one 2-core
-CPU of 2026-12-02, 4.5 and 9 on another).
-The first version (4 epochs, 1,000 updates) reached the same throughput in 12 min 53 s."""
-
-FLEET_ENV_DEFAULTS = {"block_penalty": -60.0, "observe_last_action": True, "observe_headings": True}
-"""What ``python train_ppo.py --env Fleet-12x12-v0`` changes in the environment unless told otherwise.
-
-FLEET_SPEC.md's -1 makes pushing into an occupied cell worth it whenever the robot ahead
-moves away at least a third of the time (a push gains the +2 shaping, a block costs 1 more
-than waiting), and the greedy policy then blocks about 5-15 times per robot per 100 steps;
-at -5 a push pays only when the robot ahead almost surely leaves. Evaluation counts blocks
-whatever the penalty. -60 since the headings below: once a robot can see a contested cell
-coming, a dearer block teaches it to yield (at K = 4, 0.88 blocks per robot per 100 steps at
--5, 0.71 at -10, 0.25 at -40, 0.22 at -60; at K = 8, 3.30, 2.76, 0.85, 0.40, for 107 % of
-PIBT's throughput at -10, 102 % at -40 and 101 % at -60, the first penalty with every seed of
-eight under 1 block; with the contract's observation -10 changed nothing).
-``observe_last_action`` gives each robot its previous action and whether
-it was blocked (a one-step memory): two robots meeting head-on otherwise see the same window
-step after step and the argmax repeats the refused swap; with it the greedy fleet at K = 8
-went from 88 to 95 % of PIBT. ``observe_headings`` shows where the other robots' previous
-actions aimed, so a meeting or a contested cell is seen before it happens: with both, the
-K = 4 fleet blocks 0.9 times per robot per 100 steps instead of 2.5 at -5 (docs/fleet_training.md)."""
-
-PRESETS = {"default": DEFAULT, "paper": PAPER, "procedural": PROCEDURAL, "fleet": FLEET}
-
-STUDY_TABLE3 = {
-    "Task Completion Rate": "Stable across 20 locations",
-    "Mean Steps to Complete": "~25-60 steps (est.)",
-    "Mean Episode Reward": ">+150 target",
-    "Convergence Timestep": "~400,000 steps (est.)",
-    "Obstacle Avoidance": "~95%+ in evaluation",
-    "Stage Switching": "not reported",
-}
 
 SPEC = AlgoSpec(
     name="ppo",

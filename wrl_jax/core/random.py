@@ -8,8 +8,8 @@ Written out (20 rounds, 5 key injections) threefry is plain elementwise
 integer arithmetic that XLA fuses into the step. For JAX's default keys
 (typed threefry2x32 keys in the default partitionable mode) these functions
 return exactly ``jax.random.bits`` / ``jax.random.split``; any other key
-falls back to ``jax.random`` itself. ``tests/test_step_rng.py`` and
-``tests/test_fleet_env.py`` check the bits.
+falls back to ``jax.random`` itself. ``tests/envs/warehouse/test_step_rng.py`` and
+``tests/envs/fleet/test_fleet_env.py`` check the bits.
 """
 
 from __future__ import annotations
@@ -112,7 +112,7 @@ def words_modulo(words: jax.Array, divisor: jax.Array) -> jax.Array:
     ``3 * 2**-24``), so for ``x < 2**32`` the residual ``x - trunc(...) d`` (computed mod 2**32, read
     as int32) lies in ``(-769, 769 + d)``: an int32, and exact in float32 while ``d <= 2**23``. A
     second estimate on that residual is off by at most one, which two compares fix.
-    ``tests/test_step_rng.py`` checks every divisor up to 4,096, powers of two and their neighbours
+    ``tests/envs/warehouse/test_step_rng.py`` checks every divisor up to 4,096, powers of two and their neighbours
     up to ``MAX_MODULUS`` and random ones, against NumPy, on edge and random words and the words
     next to multiples of the divisor.
     """

@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from wrl_jax.agents import dqn, ppo
+from wrl_jax.agents import dqn, dqn_config, ppo, ppo_config
 from wrl_jax.core.registry import make
 from wrl_jax.envs.warehouse.env import Warehouse
 from wrl_jax.envs.warehouse.types import EnvParams
@@ -39,7 +39,7 @@ class Setting:
         return f"{self.algo.upper()} {size} {self.preset}"
 
     def config(self, quick: bool = False):
-        presets = dqn.PRESETS if self.algo == "dqn" else ppo.PRESETS
+        presets = dqn_config.PRESETS if self.algo == "dqn" else ppo_config.PRESETS
         if self.preset not in presets:
             raise ValueError(f"unknown {self.algo} preset {self.preset!r}; known: {sorted(presets)}")
         changes = dict(self.overrides)

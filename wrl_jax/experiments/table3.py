@@ -19,13 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from wrl_jax.agents import dqn, ppo
+from wrl_jax.agents import dqn_config, ppo_config
 from wrl_jax.experiments import common
 from wrl_jax.experiments.configs import ENV_8, ENV_12, Setting, build
 
 STUDY = {
-    "dqn": dqn.STUDY_TABLE3,
-    "ppo": ppo.STUDY_TABLE3,
+    "dqn": dqn_config.STUDY_TABLE3,
+    "ppo": ppo_config.STUDY_TABLE3,
 }
 
 ROWS = (

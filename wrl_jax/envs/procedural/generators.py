@@ -21,7 +21,7 @@ need, or less than ``min_reach`` of the free floor, i.e. the start sits in a
 side pocket) is redrawn with a fresh key; the last of ``max_attempts`` draws is
 the repair, which clears the shelves (an empty floor is always solvable). Free cells
 the start does not reach are then filled with shelves, so every free cell of a
-generated layout is reachable: the NumPy BFS agrees (tests/test_procedural.py).
+generated layout is reachable: the NumPy BFS agrees (tests/envs/procedural/test_procedural.py).
 """
 
 from __future__ import annotations

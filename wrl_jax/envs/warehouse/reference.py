@@ -1,7 +1,7 @@
 """A plain NumPy reference of the warehouse MDP, written from SPEC.md alone.
 
 This is the yardstick the JAX environment is checked against, bit for bit
-(``tests/test_parity.py``). It is deliberately written in the style of the
+(``tests/envs/warehouse/test_parity.py``). It is deliberately written in the style of the
 study: one environment, mutable attributes, Python ``if`` statements and
 NumPy scalars, so that it reads like the specification and shares no
 transition code with ``wrl_jax.envs.warehouse.env``. The only code it shares is the layout

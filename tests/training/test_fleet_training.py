@@ -15,13 +15,13 @@ import pytest
 import wrl_jax
 from wrl_jax import training
 from wrl_jax.cli import train as cli_train
-from wrl_jax.agents import ppo
+from wrl_jax.agents import ppo_config
 from wrl_jax.agents.ppo import PPO
 from wrl_jax.envs.fleet import evaluation as fleet_evaluation
 from wrl_jax.envs.fleet import metrics
 from wrl_jax.envs.fleet.env import global_state
 
-TINY = dataclasses.replace(ppo.FLEET, num_envs=4, num_steps=8, num_minibatches=2, update_epochs=1,
+TINY = dataclasses.replace(ppo_config.FLEET, num_envs=4, num_steps=8, num_minibatches=2, update_epochs=1,
                            hidden_sizes=(16, 16), total_timesteps=4 * 8 * 2)
 
 
@@ -79,10 +79,11 @@ def test_the_reached_global_state_is_kept_for_the_bootstrap_of_a_truncated_shift
 def test_bad_fleet_configurations_fail_before_compiling():
     warehouse, params = wrl_jax.make("Warehouse-8x8-v0")
     with pytest.raises(ValueError, match="critic='centralized' needs a multi-agent"):
-        PPO(dataclasses.replace(ppo.DEFAULT, critic="centralized"), warehouse, params)
+        PPO(dataclasses.replace(ppo_config.DEFAULT, critic="centralized"), warehouse, params)
     with pytest.raises(ValueError, match="critic must be one of"):
-        dataclasses.replace(ppo.DEFAULT, critic="global").validate()
-    from wrl_jax.agents.dqn import DEFAULT as DQN_DEFAULT, DQN
+        dataclasses.replace(ppo_config.DEFAULT, critic="global").validate()
+    from wrl_jax.agents.dqn_config import DEFAULT as DQN_DEFAULT
+    from wrl_jax.agents.dqn import DQN
 
     fleet, fleet_params = wrl_jax.make("Fleet-12x12-v0", num_robots=2)
     with pytest.raises(ValueError, match="DQN is single-agent"):
@@ -96,7 +97,7 @@ def test_ippo_learns_a_fleet_far_above_random():
     delivers. Measured on probe seeds 50-57 (same budget): 0.039-0.062 deliveries per step against PIBT's
     0.089 (43-69 %), random actions 0.0001. Seed 7100 is used nowhere else."""
     # 4 epochs per update (the first fleet preset's), the budget the probe seeds below were measured with.
-    config = dataclasses.replace(ppo.FLEET, update_epochs=4, total_timesteps=40 * ppo.FLEET.steps_per_update)
+    config = dataclasses.replace(ppo_config.FLEET, update_epochs=4, total_timesteps=40 * ppo_config.FLEET.steps_per_update)
     env, params = wrl_jax.make("Fleet-12x12-v0", num_robots=2)
     trainer = training.Trainer(PPO(config, env, params), [7100], training.LoopConfig(eval_every=40, progress=False))
     result = training.run(trainer)

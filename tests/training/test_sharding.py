@@ -34,7 +34,7 @@ import pytest
 
 from wrl_jax.training import sharding
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 TINY_UPDATES = 4  # updates of TINY_PPO below
 
 PRELUDE = """
@@ -43,9 +43,11 @@ import jax, numpy as np
 import wrl_jax
 from wrl_jax import training
 from wrl_jax.training import sharding
-from wrl_jax.agents.dqn import DQN, DQNConfig
+from wrl_jax.agents.dqn import DQN
+from wrl_jax.agents.dqn_config import DQNConfig
 from wrl_jax.agents.base import make_train_seeds
-from wrl_jax.agents.ppo import PPO, PPOConfig
+from wrl_jax.agents.ppo import PPO
+from wrl_jax.agents.ppo_config import PPOConfig
 
 ENV = "Warehouse-8x8-v0"
 env, params = wrl_jax.make(ENV)
@@ -74,7 +76,7 @@ lay = sharded.runners.params
 out["param_spec"] = list(lay.sharding.spec)
 out["param_shard_rows"] = sorted(s.data.shape[0] for s in lay.addressable_shards)
 out["param_shard_devices"] = len({s.device for s in lay.addressable_shards})
-# One device: make_train_seeds, the same updates as the chunked driver bit for bit (tests/test_training.py),
+# One device: make_train_seeds, the same updates as the chunked driver bit for bit (tests/training/test_training.py),
 # compiled once per batch size.
 train = jax.jit(make_train_seeds(algo))
 halves = [train(training.seed_keys(part)) for part in ([0, 1], [2, 3])]

@@ -16,8 +16,10 @@ from wrl_jax.training import sweep as sw
 from wrl_jax.training import sweep_outputs
 from wrl_jax import training
 from wrl_jax.stats import mean_half_width
-from wrl_jax.agents.dqn import DQN, DQNConfig
-from wrl_jax.agents.ppo import PPO, PPOConfig
+from wrl_jax.agents.dqn import DQN
+from wrl_jax.agents.dqn_config import DQNConfig
+from wrl_jax.agents.ppo import PPO
+from wrl_jax.agents.ppo_config import PPOConfig
 
 ENV = "Warehouse-8x8-v0"
 TINY_PPO = PPOConfig(
@@ -267,7 +269,7 @@ def test_the_documented_fleet_command_parses():
 
     from wrl_jax.cli.sweep import FLEET_EXAMPLE
 
-    docs = (Path(__file__).resolve().parents[1] / "docs" / "scale.md").read_text()
+    docs = (Path(__file__).resolve().parents[2] / "docs" / "scale.md").read_text()
     assert FLEET_EXAMPLE in docs
     args = sweep_cli.build_parser().parse_args(shlex.split(FLEET_EXAMPLE)[3:])
     assert (args.algo, args.env, args.num_seeds) == ("ppo", FLEET, 4)

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from wrl_jax.agents.base import make_train
-from wrl_jax.agents import ppo, propagation
+from wrl_jax.agents import ppo, ppo_config, propagation
 from wrl_jax.core.registry import make
 
 
@@ -124,7 +124,7 @@ def test_robot_features_rank_the_moves():
 
 def test_ppo_wires_one_propagation_for_actor_and_critic(map_env):
     env, params = map_env
-    config = dataclasses.replace(ppo.PROCEDURAL, encoder="propagation", propagation_rounds=8)
+    config = dataclasses.replace(ppo_config.PROCEDURAL, encoder="propagation", propagation_rounds=8)
     algo = ppo.PPO(config, env, params)
     networks = algo.unflatten(algo.flatten(algo._init_networks(jax.random.key(0))))
     assert set(networks["actor"]["propagation"]) == {"kernel", "bias", "prior"}
@@ -156,14 +156,14 @@ def test_ppo_wires_one_propagation_for_actor_and_critic(map_env):
 )
 def test_bad_encoder_settings_are_refused(change, message):
     with pytest.raises(ValueError, match=message):
-        dataclasses.replace(ppo.PROCEDURAL, **change).validate()
+        dataclasses.replace(ppo_config.PROCEDURAL, **change).validate()
 
 
 def test_propagation_needs_a_map_in_the_observation():
     env, params = make("Procedural-Warehouse-v0", pool_size=8)
     assert env.map_observation() is None
     with pytest.raises(ValueError, match="observe-map True"):
-        ppo.PPO(dataclasses.replace(ppo.PROCEDURAL, encoder="propagation"), env, params)
+        ppo.PPO(dataclasses.replace(ppo_config.PROCEDURAL, encoder="propagation"), env, params)
 
 
 def test_training_makes_shelves_dear_and_delivers_on_held_out_layouts():
@@ -171,7 +171,7 @@ def test_training_makes_shelves_dear_and_delivers_on_held_out_layouts():
     (the network is told nothing about them) and deliver greedily on the periodic held-out evaluation,
     far more than the untrained network does (whose field runs through shelves as if they were floor)."""
     env, params = make("Procedural-Warehouse-v0", pool_size=256, observe_map=True)
-    config = dataclasses.replace(ppo.PROCEDURAL, encoder="propagation", num_envs=32, total_timesteps=100 * 1024,
+    config = dataclasses.replace(ppo_config.PROCEDURAL, encoder="propagation", num_envs=32, total_timesteps=100 * 1024,
                                  hidden_sizes=(64, 64))
     algo = ppo.PPO(config, env, params)
     train = make_train(algo)

@@ -12,10 +12,11 @@ import pytest
 import wrl_jax
 from wrl_jax import training
 from wrl_jax.envs.warehouse import evaluation
-from wrl_jax.agents import ppo
+from wrl_jax.agents import encoding, initializers, ppo, ppo_config
 from wrl_jax.agents.base import make_train, make_train_seeds
 from wrl_jax.agents.networks import MLP
-from wrl_jax.agents.ppo import PPO, PPOConfig
+from wrl_jax.agents.ppo import PPO
+from wrl_jax.agents.ppo_config import PPOConfig
 
 
 @pytest.mark.slow
@@ -27,7 +28,7 @@ def test_learns_8x8_to_every_item_at_the_optimum():
     test's outcome depended on the last bits of this CPU's arithmetic.
     """
     env, params = wrl_jax.make("Warehouse-8x8-v0")
-    config = dataclasses.replace(ppo.DEFAULT, num_envs=16, hidden_sizes=(32, 32), total_timesteps=61_440)
+    config = dataclasses.replace(ppo_config.DEFAULT, num_envs=16, hidden_sizes=(32, 32), total_timesteps=61_440)
     trainer = training.Trainer(PPO(config, env, params), [0, 1], training.LoopConfig(eval_every=0, progress=False))
     result = training.run(trainer)
     summary = evaluation.summarize(training.final_evaluation(trainer, result), trainer.seeds)
@@ -55,7 +56,7 @@ def test_default_preset_learns_8x8_on_fresh_seeds():
     the last of them from 80k steps on (docs/ppo.md, "Robustness").
     """
     env, params = wrl_jax.make("Warehouse-8x8-v0")
-    config = dataclasses.replace(ppo.DEFAULT, total_timesteps=PRESET_8X8_BUDGET)
+    config = dataclasses.replace(ppo_config.DEFAULT, total_timesteps=PRESET_8X8_BUDGET)
     loop = training.LoopConfig(eval_every=0, progress=False)
     trainer = training.Trainer(PPO(config, env, params), FRESH_SEEDS, loop)
     result = training.run(trainer)
@@ -156,13 +157,13 @@ def test_seeds_differ_and_a_seed_repeats_bit_for_bit():
 
 
 def test_paper_preset_is_table_2():
-    p = ppo.PRESETS["paper"]
+    p = ppo_config.PRESETS["paper"]
     assert (p.learning_rate, p.hidden_sizes, p.gamma, p.num_envs, p.num_steps) == (3e-4, (256, 256), 0.99, 8, 1024)
     assert (p.update_epochs, p.ent_coef, p.clip_eps, p.total_timesteps) == (10, 0.02, 0.2, 600_000)
     assert p.minibatch_size == 64  # SB3's default batch_size
     assert (p.gae_lambda, p.vf_coef, p.max_grad_norm) == (0.95, 0.5, 0.5)
     assert p.reward_scale == 1.0 and p.obs_encoding == "raw" and not p.anneal_lr
-    for preset in ppo.PRESETS.values():
+    for preset in ppo_config.PRESETS.values():
         preset.validate()
 
 
@@ -182,18 +183,18 @@ def test_paper_preset_is_table_2():
 def test_invalid_configs_raise_before_compiling(change, message):
     env, params = wrl_jax.make("Warehouse-8x8-v0")
     with pytest.raises(ValueError, match=message):
-        PPO(dataclasses.replace(ppo.DEFAULT, **change), env, params)
+        PPO(dataclasses.replace(ppo_config.DEFAULT, **change), env, params)
 
 
 def test_forward_is_the_shared_mlp():
     env, params = wrl_jax.make("Warehouse-12x12-v0")
     obs = jax.vmap(lambda k: env.reset(k, params)[0])(jax.random.split(jax.random.PRNGKey(0), 16))
     obs = obs.at[3, 4:7].set(jnp.array([-1 / 11, -1 / 11, 1.0], jnp.float32))  # a carrying observation
-    for encoding in ppo.OBS_ENCODINGS:
-        algo = PPO(dataclasses.replace(ppo.DEFAULT, obs_encoding=encoding), env, params)
+    for obs_encoding in ppo_config.OBS_ENCODINGS:
+        algo = PPO(dataclasses.replace(ppo_config.DEFAULT, obs_encoding=obs_encoding), env, params)
         networks = algo.unflatten(jax.jit(algo.init)(jax.random.PRNGKey(1)).params)
-        features = jax.jit(ppo.encode_observation, static_argnums=(1, 2))(obs, env, encoding)
-        assert features.shape[-1] == ppo.encoded_size(env, encoding)
+        features = jax.jit(encoding.encode_observation, static_argnums=(1, 2))(obs, env, obs_encoding)
+        assert features.shape[-1] == encoding.encoded_size(env, obs_encoding)
         for name, out in (("actor", 4), ("critic", 1)):
             mlp = MLP(algo.config.hidden_sizes, out, algo.config.activation)
             # Jitted: op by op, the same check compiles every primitive on its own (seconds on 2 cores).
@@ -202,13 +203,13 @@ def test_forward_is_the_shared_mlp():
             )
         assert np.array_equal(algo.unflatten(algo.flatten(networks))["actor"]["params"]["Dense_0"]["kernel"],
                               networks["actor"]["params"]["Dense_0"]["kernel"])
-    onehot = ppo.encode_observation(obs, env, "onehot")
+    onehot = encoding.encode_observation(obs, env, "onehot")
     assert np.all(np.asarray(onehot[:, :78]).sum(-1) == 6)  # one 1 per coordinate
 
 
 def test_orthonormal_columns_match_householder_qr():
     a = jax.random.normal(jax.random.PRNGKey(0), (64, 20))
-    q = np.asarray(ppo.orthonormal_columns(a), np.float64)
+    q = np.asarray(initializers.orthonormal_columns(a), np.float64)
     np.testing.assert_allclose(q.T @ q, np.eye(20), atol=1e-5)
     q_ref, r_ref = np.linalg.qr(np.asarray(a, np.float64))
     np.testing.assert_allclose(q, q_ref * np.sign(np.diag(r_ref)), atol=1e-5)
@@ -216,7 +217,7 @@ def test_orthonormal_columns_match_householder_qr():
 
 def test_flops_per_update_counts_the_networks():
     env, params = wrl_jax.make("Warehouse-12x12-v0")
-    p = ppo.PRESETS["paper"]
+    p = ppo_config.PRESETS["paper"]
     flops = PPO(p, env, params).flops_per_update()
     per_net = 2 * (7 * 256 + 256 * 256)  # the two hidden layers dominate
     assert 10 * 8192 * 3 * 2 * per_net < flops < 1.2 * 12 * 8192 * 3 * 2 * per_net

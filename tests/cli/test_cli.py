@@ -18,7 +18,7 @@ from wrl_jax.cli import options as cli_options
 from wrl_jax.cli import train as cli_train
 from wrl_jax.cli.options import build
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 TINY = [
     "--env", "Warehouse-8x8-v0", "--num-seeds", "2", "--seed", "5", "--total-timesteps", "768",
     "--num-envs", "8", "--num-steps", "16", "--num-minibatches", "2", "--update-epochs", "1",
@@ -116,13 +116,13 @@ def test_resume_refuses_changed_settings_and_overwrite_is_explicit(finished_run,
 
 
 def test_config_round_trip_through_json():
-    from wrl_jax.agents import ppo
+    from wrl_jax.agents import ppo_config
 
-    data = config_to_dict(ppo.PAPER)
+    data = config_to_dict(ppo_config.PAPER)
     assert data["hidden_sizes"] == [256, 256]
-    assert config_from_dict(ppo.PPOConfig, data) == ppo.PAPER
+    assert config_from_dict(ppo_config.PPOConfig, data) == ppo_config.PAPER
     with pytest.raises(ValueError, match="no field"):
-        config_from_dict(ppo.PPOConfig, {**data, "bogus": 1})
+        config_from_dict(ppo_config.PPOConfig, {**data, "bogus": 1})
 
 
 def test_train_ppo_script_help():

@@ -21,10 +21,11 @@ import wrl_jax
 from wrl_jax import training
 from wrl_jax.agents.base import make_train, make_train_seeds
 from wrl_jax.envs.warehouse import evaluation
-from wrl_jax.agents.dqn import DQN, PRESETS, DQNConfig, DQNHyper, make_algorithm
+from wrl_jax.agents.dqn import DQN, make_algorithm
+from wrl_jax.agents.dqn_config import PRESETS, DQNConfig
 from wrl_jax.agents.replay import Transition
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 SMALL_MAP = """
 S . 0
@@ -199,7 +200,7 @@ def test_td_target_stops_only_at_termination(small_env):
     algo = DQN(dataclasses.replace(SMALL, loss="mse"), env, params)
     online = algo.init_network(jax.random.PRNGKey(0))
     target = algo.init_network(jax.random.PRNGKey(1))
-    hyper = DQNHyper.from_config(algo.config, gamma=0.9, reward_scale=0.5)
+    hyper = algo.config.hyper(gamma=0.9, reward_scale=0.5)
     obs = jax.random.uniform(jax.random.PRNGKey(2), (2, env.obs_size))
     next_obs = jax.random.uniform(jax.random.PRNGKey(3), (2, env.obs_size))
     batch = Transition(
@@ -310,14 +311,14 @@ def test_checkpoint_round_trip_and_exact_resume(tmp_path, small_env):
 )
 def test_invalid_config_raises_clear_error(changes, message):
     with pytest.raises(ValueError, match=message):
-        dataclasses.replace(SMALL, **changes)
+        dataclasses.replace(SMALL, **changes).validate()
 
 
 def test_invalid_sweep_hyper_raises():
     with pytest.raises(ValueError, match="learning_rate"):
-        DQNHyper.from_config(SMALL, learning_rate=np.array([1e-3, -1.0]))
+        SMALL.hyper(learning_rate=np.array([1e-3, -1.0]))
     with pytest.raises(ValueError, match="unknown DQN hyperparameter"):
-        DQNHyper.from_config(SMALL, num_envs=3)
+        SMALL.hyper(num_envs=3)
 
 
 def test_presets():

@@ -4,7 +4,7 @@ files and of runs of other environments.
 
 The run is a checkpoint of an untrained 2-seed PPO written as training writes it (training a procedural run,
 even a tiny one, costs about a minute of compilation on two cores; the evaluation does not care how good the
-policy is). The final generalization report of a training run is tested in tests/test_procedural.py.
+policy is). The final generalization report of a training run is tested in tests/envs/procedural/test_procedural.py.
 """
 
 from __future__ import annotations
@@ -21,13 +21,13 @@ import pytest
 from wrl_jax import training
 from wrl_jax.envs.warehouse import maps
 from wrl_jax.cli import evaluate as cli_evaluate
-from wrl_jax.agents import get_spec, ppo
+from wrl_jax.agents import get_spec, ppo_config
 from wrl_jax.agents.base import config_to_dict
 from wrl_jax.cli.options import EnvOptions, build
 from wrl_jax.envs.warehouse.layout import optimal_route_lengths, parse
 from wrl_jax.training import checkpoint
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 SMALL_ASCII = "S . . #\n. # 0 .\n. . . G\n. . # .\n"
 MOVINGAI = "type octile\nheight 6\nwidth 9\nmap\n.........\n.@@@.@@@.\n.........\n.@@@.@@@.\n.........\nTT.......\n"
 
@@ -36,15 +36,15 @@ MOVINGAI = "type octile\nheight 6\nwidth 9\nmap\n.........\n.@@@.@@@.\n.........
 def procedural_run(tmp_path_factory):
     """A run directory holding the checkpoint of an untrained PPO on Procedural-Warehouse-v0, seeds 3 and 4."""
     spec = get_spec("ppo")
-    config = dataclasses.replace(ppo.PROCEDURAL, hidden_sizes=(16,), num_envs=8, num_steps=16, num_minibatches=2,
+    config = dataclasses.replace(ppo_config.PROCEDURAL, hidden_sizes=(16,), num_envs=8, num_steps=16, num_minibatches=2,
                                  update_epochs=1, total_timesteps=256)
     # The preset's observation (the previous action too): evaluate must rebuild it from env_overrides.
-    algo = build(spec, config, EnvOptions(env="Procedural-Warehouse-v0", **ppo.PROCEDURAL_ENV_DEFAULTS))
+    algo = build(spec, config, EnvOptions(env="Procedural-Warehouse-v0", **ppo_config.PROCEDURAL_ENV_DEFAULTS))
     assert algo.env.observe_last_action and algo.env.observe_visited and algo.env.visit_levels == 3
     trainer = training.Trainer(algo, [3, 4], training.LoopConfig(progress=False))
     out = tmp_path_factory.mktemp("procedural-run")
     checkpoint.save(out, trainer.host_state(trainer.init()), {
-        "algo": "ppo", "env": "Procedural-Warehouse-v0", "env_overrides": dict(ppo.PROCEDURAL_ENV_DEFAULTS), "preset": "procedural",
+        "algo": "ppo", "env": "Procedural-Warehouse-v0", "env_overrides": dict(ppo_config.PROCEDURAL_ENV_DEFAULTS), "preset": "procedural",
         "config": config_to_dict(config), "seeds": [3, 4], "num_updates": trainer.num_updates,
         "steps_per_update": trainer.steps_per_update, "updates_done": 0, "env_steps_done": 0,
         "train_seconds": 0.0,

@@ -14,7 +14,8 @@ from wrl_jax.training import checkpoint
 from wrl_jax.envs.warehouse import evaluation
 from wrl_jax.training import metrics_io
 from wrl_jax.envs.warehouse import routes
-from wrl_jax.agents.ppo import PPO, PPOConfig
+from wrl_jax.agents.ppo import PPO
+from wrl_jax.agents.ppo_config import PPOConfig
 from wrl_jax.envs.warehouse.layout import MOVES
 
 # A tiny PPO (compiles in seconds, runs in milliseconds): the driver is what is tested here.
