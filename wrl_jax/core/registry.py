@@ -8,8 +8,8 @@ gymnax is imported: ``import gymnax`` imports every gymnax environment and
 starts JAX's backend, which ``import wrl_jax`` must not do (a broken corner of
 gymnax would take the whole package down, and XLA's flags could no longer be
 set). :func:`register_with_gymnax` runs when wrl_jax first imports gymnax
-(:mod:`wrl_jax.core.environment`, through :mod:`wrl_jax.core.gymnax_base`) and on ``import wrl_jax`` if gymnax is
-already loaded; gymnax refuses an id twice, so it checks first.
+(:mod:`wrl_jax.core.environment`, through :mod:`wrl_jax.core.gymnax_base`) and on
+``import wrl_jax`` if gymnax is already loaded; gymnax refuses an id twice, so it checks first.
 
 The one place that lists the built-in names is :mod:`wrl_jax.envs`.
 """

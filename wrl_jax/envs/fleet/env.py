@@ -31,7 +31,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from wrl_jax.core.environment import Environment, spaces
+from wrl_jax.core.environment import Environment
+from wrl_jax.core.gymnax_base import spaces
 from wrl_jax.core.grid import MOVES_WITH_WAIT
 from wrl_jax.core.observation import (
     bit_windows_supported,

@@ -51,7 +51,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from wrl_jax.core.environment import Environment, spaces
+from wrl_jax.core.environment import Environment
+from wrl_jax.core.gymnax_base import spaces
 from wrl_jax.core.grid import distance_maps
 from wrl_jax.core.observation import (
     RAY_DIRECTIONS,
