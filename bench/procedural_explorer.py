@@ -15,7 +15,7 @@ Each step: a BFS from the current target over the cells not known to be blocked 
 the padded grid and anything outside it are blocked; a window shows them), then the move to the
 neighbour closest to the target (ties: up, down, left, right, the action order). The target is the
 item, then the goal (SPEC.md's two stages; the window keeps what it saw across the pickup). Episodes:
-every real (layout, item) of the final report's held-out set (``evaluation.heldout_set`` of the
+every real (layout, item) of the final report's held-out set (``layout_sets.heldout_set`` of the
 default generator, the same 1,024 layouts and 4,630 episodes), so its excess (over delivered
 episodes, as a fraction of their mean optimum, like the final report's) compares with the policy's.
 Run from the repository root::
@@ -88,11 +88,11 @@ def explore(blocked: np.ndarray, start, item, goal, view_radius: int, memory: bo
 def run(layouts: int | None, view_radii: list[int]) -> dict:
     import jax
 
-    from wrl_jax.envs.procedural import evaluation
+    from wrl_jax.envs.procedural import layout_sets
     from wrl_jax.envs.procedural.generators import GeneratorConfig
 
     generator = GeneratorConfig()
-    heldout, _ = evaluation.heldout_set(generator, np.zeros(0, np.uint64), layouts)
+    heldout, _ = layout_sets.heldout_set(generator, np.zeros(0, np.uint64), layouts)
     lay = jax.tree.map(np.asarray, heldout.layouts)
     episodes = [(index, item) for index in range(lay.blocked.shape[0]) for item in range(int(lay.num_items[index]))]
     optimal = []

@@ -38,7 +38,7 @@ if str(ROOT) not in sys.path:
 from wrl_jax.agents import get_spec  # noqa: E402
 from wrl_jax.agents.base import config_from_dict  # noqa: E402
 from wrl_jax.cli.options import EnvOptions, build  # noqa: E402
-from wrl_jax.envs.procedural import evaluation as procedural_evaluation  # noqa: E402
+from wrl_jax.envs.procedural import layout_sets  # noqa: E402
 from wrl_jax.envs.procedural.pool import pool_of  # noqa: E402
 from wrl_jax.training import Trainer, LoopConfig, checkpoint  # noqa: E402
 
@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     runners, _ = checkpoint.load(args.run, trainer.template())
     network = jax.tree.map(lambda x: x[args.seed_index], jax.vmap(algo.network_params)(runners))
     params = jax.tree.map(lambda x: x[0], runners.env_params)
-    heldout, _ = procedural_evaluation.heldout_set(env.generator, env.training_layout_hashes(params, meta["updates_done"]))
+    heldout, _ = layout_sets.heldout_set(env.generator, env.training_layout_hashes(params, meta["updates_done"]))
     eval_params = env.with_pool(params, jax.jit(pool_of)(heldout.layouts))
     num_items = np.asarray(heldout.layouts.num_items)
     slots, items = np.nonzero(np.arange(heldout.layouts.max_items)[None, :] < num_items[:, None])

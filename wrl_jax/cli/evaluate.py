@@ -81,12 +81,13 @@ def evaluate_layouts(run_dir: str | os.PathLike, paths: list[str]) -> dict[str, 
                          f"its egocentric window can be read on any floor); {run_dir} holds a {meta['algo']} run "
                          f"on {meta['env']} (family {family!r})")
     from wrl_jax.envs.procedural import evaluation as procedural_evaluation
+    from wrl_jax.envs.procedural import layout_sets, reports
 
     spec = get_spec(meta["algo"])
     config = config_from_dict(spec.config_cls, meta["config"])
     algo = build(spec, config, EnvOptions(env=meta["env"], **meta.get("env_overrides", {})))
     env = algo.env
-    sets = procedural_evaluation.layout_file_sets(paths, env.max_shape, env.generator.max_items)
+    sets = layout_sets.layout_file_sets(paths, env.max_shape, env.generator.max_items)
     trainer = training.Trainer(algo, meta["seeds"], training.LoopConfig(progress=False))
     runners, meta = checkpoint.load(run_dir, trainer.template())
     network_params = jax.vmap(algo.network_params)(runners)
@@ -96,7 +97,7 @@ def evaluate_layouts(run_dir: str | os.PathLike, paths: list[str]) -> dict[str, 
     overall = report.pop("overall")
     label = (f"{spec.name.upper()} {meta['env']} ({meta.get('preset', '?')}, {len(trainer.seeds)} seeds, "
              f"{meta['updates_done'] * trainer.steps_per_update:,} steps) on {len(sets)} layout file(s)")
-    table = procedural_evaluation.format_sets({**report, "overall": overall})
+    table = reports.format_sets({**report, "overall": overall})
     return {"run": str(run_dir), "env": meta["env"], "seeds": list(trainer.seeds), "layouts": report,
             "overall": overall, "updates_done": meta["updates_done"], "table": f"{label}\n\n{table}", "items": ""}
 

@@ -650,7 +650,7 @@ def test_packed_wall_rows_agree_with_the_grid_and_the_fleet_masks():
 
 def test_reset_draws_slot_and_item_from_jax_random_bits(env_and_params):
     """The written-out reset draw is ``jax.random.bits(key, (2,), uint32)`` through Lemire's map, bit for bit."""
-    from wrl_jax.envs.procedural.env import draw_episode
+    from wrl_jax.envs.procedural.episode import draw_episode
     from wrl_jax.envs.warehouse.env import item_from_word
 
     _, params = env_and_params
@@ -776,21 +776,21 @@ def _toward_target(network_params, obs):
 @pytest.fixture(scope="module")
 def ood():
     """The out-of-distribution sets for the default generator, 16 layouts each, 3 MovingAI placements (compiled once)."""
-    from wrl_jax.envs.procedural import evaluation
+    from wrl_jax.envs.procedural import layout_sets
 
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(evaluation, "MOVINGAI_DRAWS", 3)
-        return evaluation.ood_sets(CONFIG, ood_layouts=16)
+        patch.setattr(layout_sets, "MOVINGAI_DRAWS", 3)
+        return layout_sets.ood_sets(CONFIG, ood_layouts=16)
 
 
 def test_final_report_measures_heldout_and_ood_sets(env_and_params, ood, monkeypatch):
     """The final generalization report: sets, sizes, yardsticks, per-seed rows, the hash check, the tables."""
     from types import SimpleNamespace
 
-    from wrl_jax.envs.procedural import evaluation
     from wrl_jax.core.evaluation import FinalContext
+    from wrl_jax.envs.procedural import evaluation, layout_sets, reports
 
-    monkeypatch.setattr(evaluation, "FINAL_HELDOUT_LAYOUTS", 48)
+    monkeypatch.setattr(layout_sets, "FINAL_HELDOUT_LAYOUTS", 48)
 
     def ood_sets(generator, ood_layouts=None):  # the fixture's sets (generated once for the module)
         assert generator == CONFIG
@@ -821,29 +821,29 @@ def test_final_report_measures_heldout_and_ood_sets(env_and_params, ood, monkeyp
             assert row["mean_excess"] >= 0 and row["excess_fraction"] == row["mean_excess"] / row["mean_optimal"]
     assert 0 < heldout["delivery_rate"] < 1  # the stand-in policy walks into shelves on some floors only
     assert report["final_report_seconds"] > 0
-    details = evaluation.format_details(report)
+    details = reports.format_details(report)
     assert "| heldout | 48 |" in details and "| movingai | 3 |" in details and "seed 8" in details
     assert "| heldout (sampled policy) | 48 |" in details
     summary = {"eval_layouts": 64, "episodes_per_seed": 1, "success_rate": 1.0, "optimal_rate": 1.0,
                "mean_excess": 0.0, "collisions_per_episode": 0.0, **report}
-    headline = evaluation.format_report(summary, "x")
+    headline = reports.format_report(summary, "x")
     assert "final: 48 held-out layouts" in headline and "final, sampled policy: delivered / excess" in headline
 
 
 def test_final_sets_agree_with_the_periodic_evaluation_and_drop_training_layouts(env_and_params):
-    from wrl_jax.envs.procedural import evaluation
+    from wrl_jax.envs.procedural import evaluation, layout_sets
 
     env, params = env_and_params
     params = params.replace(max_steps=jnp.int32(60))
-    heldout, overlap = evaluation.heldout_set(env.generator, params.pool, count=48)
+    heldout, overlap = layout_sets.heldout_set(env.generator, params.pool, count=48)
     assert overlap == 0 and heldout.size == 48
     # Plant three of them in a "training pool": the hash check finds and drops exactly those.
     planted = jax.tree.map(lambda t, h: t.at[:3].set(h[:3]), params.pool.layouts, heldout.layouts)
-    kept, overlap = evaluation.heldout_set(env.generator, params.pool.replace(layouts=planted), count=48)
+    kept, overlap = layout_sets.heldout_set(env.generator, params.pool.replace(layouts=planted), count=48)
     assert overlap == 3 and kept.size == 45
     # One batch over sets (padded to 20 item rows by the study map) = each pool evaluated alone.
-    sets = [heldout, evaluation.LayoutSet("study", "", jax.tree.map(
-        lambda x: x[None], evaluation.study_layout("12x12", env.max_shape)))]
+    sets = [heldout, layout_sets.LayoutSet("study", "", jax.tree.map(
+        lambda x: x[None], layout_sets.study_layout("12x12", env.max_shape)))]
     together = evaluation.evaluate_sets(_toward_target, jnp.arange(2), env, params, sets, [0, 1], overall="all")
     alone = jax.tree.map(np.asarray, jax.jit(jax.vmap(
         lambda net: evaluation.evaluate_pool(_toward_target, net, env, params, pool_from_layouts(
@@ -866,8 +866,8 @@ def test_final_sets_agree_with_the_periodic_evaluation_and_drop_training_layouts
     with pytest.raises(ValueError, match="sampled episodes need a key"):
         evaluation.run_episodes(_toward_target, 0, env, params, jnp.arange(2), jnp.zeros(2, jnp.int32), uniform)
     with pytest.raises(ValueError, match="padded to"):
-        evaluation.evaluate_sets(_toward_target, jnp.arange(1), env, params, [evaluation.LayoutSet(
-            "small", "", jax.tree.map(lambda x: x[None], evaluation.study_layout("8x8", (8, 8))))], [0])
+        evaluation.evaluate_sets(_toward_target, jnp.arange(1), env, params, [layout_sets.LayoutSet(
+            "small", "", jax.tree.map(lambda x: x[None], layout_sets.study_layout("8x8", (8, 8))))], [0])
 
 
 def test_ood_generators_are_out_of_distribution(ood):

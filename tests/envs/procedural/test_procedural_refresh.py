@@ -23,7 +23,7 @@ from wrl_jax.agents import ppo_config
 from wrl_jax.agents.dqn import DQN
 from wrl_jax.agents.dqn_config import DQNConfig
 from wrl_jax.agents.ppo import PPO
-from wrl_jax.envs.procedural import evaluation
+from wrl_jax.envs.procedural import layout_sets
 from wrl_jax.envs.procedural.env import ProceduralWarehouse
 from wrl_jax.envs.procedural.pool import generate_pool, pool_hashes, refresh_slots
 from wrl_jax.envs.procedural.registration import make_procedural
@@ -104,7 +104,7 @@ def test_training_layout_hashes_list_every_layout_training_saw(small, refreshed)
     with pytest.raises(ValueError, match="number of updates"):
         env.training_layout_hashes(params, updates=None)
     # The held-out set drops what training saw, given as hashes.
-    heldout, overlap = evaluation.heldout_set(env.generator, seen, count=16)
+    heldout, overlap = layout_sets.heldout_set(env.generator, seen, count=16)
     assert overlap + heldout.size == 16 and not np.isin(pool_hashes(heldout.layouts), seen).any()
 
 

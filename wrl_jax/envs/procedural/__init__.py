@@ -13,7 +13,7 @@
 docs/procedural.md explains the design and its measurements.
 """
 
-from wrl_jax.envs.procedural.env import ProceduralParams, ProceduralState, ProceduralWarehouse
+from wrl_jax.envs.procedural.env import ProceduralWarehouse
 from wrl_jax.envs.procedural.generators import (
     GeneratorConfig,
     generate,
@@ -41,6 +41,7 @@ from wrl_jax.envs.procedural.pool import (
     refresh_pool,
 )
 from wrl_jax.envs.procedural.registration import make_from_layouts, make_procedural
+from wrl_jax.envs.procedural.types import ProceduralParams, ProceduralState
 
 __all__ = [
     "GeneratorConfig", "LayoutPool", "PaddedLayout", "ProceduralParams", "ProceduralState",

@@ -16,30 +16,17 @@ Two evaluations use it:
   :data:`EVAL_SEED`, generated inside the program, every real item of each.
   "Solved" is ``optimal_rate == 1``.
 - **Final**, once on the host after training (:func:`final_report`, also run by
-  ``python -m wrl_jax.evaluate``): ``FINAL_HELDOUT_LAYOUTS`` (1,024) held-out
-  layouts, checked by hash against the training pool (any shared layout is
-  dropped and counted), and out-of-distribution sets (:func:`ood_sets`):
-  denser obstacle floors than training, full shelf floors at the maximum shape
-  with one-cell aisles, the study's 8x8 and 12x12 maps padded, and a MovingAI
-  ``.map`` warehouse (:data:`MOVINGAI_WAREHOUSE`) with drawn cells. All sets
-  are padded to one item capacity and run as ONE batch of episodes (one
-  compiled program, every seed at once); results are split per set and seed.
-
-:func:`evaluate_layouts` runs the same measurement on any given layouts (the
-``--layout`` files of ``python -m wrl_jax.evaluate``).
-
-Why one module of this length: the periodic, final and file evaluations are one
-measurement (the same episode, rates and tables) on three sets of layouts, and
-read best beside the sets they run on.
+  ``python -m wrl_jax.evaluate``): the held-out and out-of-distribution sets of
+  :mod:`~wrl_jax.envs.procedural.layout_sets`, padded to one item capacity and run
+  as ONE batch of episodes (:func:`evaluate_sets`: one compiled program, every seed
+  at once); results are split per set and seed. The statistics and tables are
+  :mod:`~wrl_jax.envs.procedural.reports`.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import math
 import time
 from collections.abc import Callable, Sequence
-from pathlib import Path
 from typing import Any
 
 import jax
@@ -47,48 +34,15 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from wrl_jax.envs.procedural.layout import PaddedLayout, from_layout, stack
-from wrl_jax.envs.procedural.movingai import is_movingai, load_map, movingai_layout, parse_movingai
-from wrl_jax.envs.procedural.pool import LayoutPool, disjoint_from, generate_pool, pool_hashes, pool_of
-from wrl_jax.envs.warehouse.layout import parse
-from wrl_jax.envs.warehouse.maps import WAREHOUSE_8X8, WAREHOUSE_12X12
 from wrl_jax.core.evaluation import FamilyEvaluation, FinalContext, SweepColumns, SweepMetric
+from wrl_jax.envs.procedural.layout_sets import EVAL_SEED, LayoutSet, heldout_set, ood_sets, pad_items
+from wrl_jax.envs.procedural.pool import LayoutPool, generate_pool, pool_of
+from wrl_jax.envs.procedural.reports import episode_stats, format_details, format_report
 
-EVAL_SEED = 2026
 EVAL_LAYOUTS = 64
-FINAL_HELDOUT_LAYOUTS = 1024
-"""Held-out layouts of the final evaluation (the key stream of ``fold_in(key(EVAL_SEED), 1)``)."""
-OOD_LAYOUTS = 256
-"""Layouts of each generated out-of-distribution set."""
-MOVINGAI_DRAWS = 32
-"""Start, goal and item placements drawn on :data:`MOVINGAI_WAREHOUSE` (one layout each)."""
+"""Held-out layouts of the periodic evaluation (generated inside the training program)."""
 GreedyFn = Callable[[Any, jax.Array], jax.Array]
 SampleFn = Callable[[Any, jax.Array, jax.Array], jax.Array]
-
-MOVINGAI_WAREHOUSE = """type octile
-height 15
-width 16
-map
-................
-.@@@@@@..@@@@@@.
-.@@@@@@..@@@@@@.
-................
-.@@@@@@..@@@@@@.
-.@@@@@@..@@@@@@.
-................
-.@@@@@@..@@@@@@.
-.@@@@@@..@@@@@@.
-................
-..TT........TT..
-................
-.@@@@@@@@@@@@@@.
-................
-................
-"""
-"""A small warehouse in MovingAI's format (15x16: four double-depth shelf rows, pillars ``T``, a long rack).
-
-Written here rather than downloaded (MovingAI's warehouse maps are far larger than a 16x16 policy can see).
-"""
 
 
 @struct.dataclass
@@ -192,128 +146,6 @@ def summarize(result: EpisodeEval, seeds: Sequence[int] | None = None) -> dict[s
             "episodes_per_seed": int(result.real[0].sum()), "per_seed": per_seed}
 
 
-# ------------------------------------------------------------------ episode statistics
-def _number(value: float) -> float | None:
-    """A JSON-safe float: ``None`` for NaN (no delivered episode to average over)."""
-    value = float(value)
-    return None if math.isnan(value) else value
-
-
-def episode_stats(delivered: np.ndarray, steps: np.ndarray, optimal: np.ndarray,
-                  collisions: np.ndarray) -> dict[str, Any]:
-    """The statistics of a set of episodes (1-D arrays), as plain Python numbers (``None`` where undefined).
-
-    ``mean_steps``, ``mean_optimal``, ``mean_excess`` and ``excess_fraction`` are
-    over the delivered episodes (an undelivered episode has no route length to
-    compare); ``bfs_optimum`` is the mean optimum of all episodes, the yardstick
-    of the set; ``excess_fraction = mean_excess / mean_optimal``;
-    ``mean_excess_fraction_per_episode`` is the mean of each episode's own fraction.
-    """
-    delivered = np.asarray(delivered, dtype=bool)
-    steps, optimal = np.asarray(steps, dtype=np.float64), np.asarray(optimal, dtype=np.float64)
-    collisions = np.asarray(collisions, dtype=np.float64)
-    episodes = int(delivered.size)
-    if episodes == 0:
-        raise ValueError("episode_stats needs at least one episode")
-    won = delivered.sum()
-    excess = steps[delivered] - optimal[delivered]
-    mean_optimal = optimal[delivered].mean() if won else math.nan
-    return {
-        "episodes": episodes,
-        "delivery_rate": float(won / episodes),
-        "optimal_rate": float((delivered & (steps == optimal)).sum() / episodes),
-        "mean_steps": _number(steps[delivered].mean() if won else math.nan),
-        "mean_optimal": _number(mean_optimal),
-        "bfs_optimum": float(optimal.mean()),
-        "mean_excess": _number(excess.mean() if won else math.nan),
-        "excess_fraction": _number(excess.mean() / mean_optimal if won else math.nan),
-        "mean_excess_fraction_per_episode": _number((excess / optimal[delivered]).mean() if won else math.nan),
-        "collisions_per_episode": float(collisions.mean()),
-        "collision_free_rate": float((collisions == 0).mean()),
-    }
-
-
-# ------------------------------------------------------------------ sets of layouts
-@dataclasses.dataclass(frozen=True)
-class LayoutSet:
-    """A named batch of layouts to evaluate on (``layouts``: a :class:`PaddedLayout` with a leading axis)."""
-
-    name: str
-    description: str
-    layouts: PaddedLayout
-
-    @property
-    def size(self) -> int:
-        return int(self.layouts.num_items.shape[0])
-
-
-def pad_items(layouts: PaddedLayout, capacity: int) -> PaddedLayout:
-    """A batch of layouts with ``capacity`` item rows (extra rows repeat item 0, as padding items do)."""
-    extra = capacity - layouts.max_items
-    if extra < 0:
-        raise ValueError(f"layouts hold {layouts.max_items} item rows, more than the capacity {capacity}")
-    if extra == 0:
-        return layouts
-    filler = jnp.repeat(layouts.items[:, :1], extra, axis=1)
-    return layouts.replace(items=jnp.concatenate([layouts.items, filler], axis=1))
-
-
-STUDY_MAPS = {"8x8": WAREHOUSE_8X8, "12x12": WAREHOUSE_12X12}
-
-
-def study_layout(name: str, max_shape: tuple[int, int]) -> PaddedLayout:
-    """The study's ``"8x8"`` or ``"12x12"`` map padded to ``max_shape``, every one of its items."""
-    if name not in STUDY_MAPS:
-        raise ValueError(f"unknown study map {name!r}; expected one of {sorted(STUDY_MAPS)}")
-    return from_layout(parse(STUDY_MAPS[name]), max_shape)
-
-
-def movingai_layouts(max_shape: tuple[int, int], draws: int | None = None, num_items: int = 8) -> PaddedLayout:
-    """``draws`` (:data:`MOVINGAI_DRAWS`) placements of start, goal and items on :data:`MOVINGAI_WAREHOUSE`, padded."""
-    draws = MOVINGAI_DRAWS if draws is None else int(draws)
-    blocked = parse_movingai(MOVINGAI_WAREHOUSE, "MOVINGAI_WAREHOUSE")
-    key = jax.random.fold_in(jax.random.key(EVAL_SEED), 2)
-    return stack([movingai_layout(blocked, max_shape=max_shape, max_items=num_items, num_items=num_items,
-                                  key=jax.random.fold_in(key, draw), source="MOVINGAI_WAREHOUSE")
-                  for draw in range(draws)])
-
-
-def ood_sets(generator, ood_layouts: int | None = None) -> list[LayoutSet]:
-    """The out-of-distribution sets for a policy trained on ``generator``'s layouts (skipping what does not fit).
-
-    - ``dense``: obstacle floors of a density above the training range (its top to 10 points over it);
-    - ``narrow_shelves``: shelf floors at the maximum shape, one-cell aisles, no knocked-out shelves;
-    - ``study_8x8``, ``study_12x12``: the study's maps, padded, every item;
-    - ``movingai``: :data:`MOVINGAI_WAREHOUSE` with :data:`MOVINGAI_DRAWS` drawn placements.
-    """
-    ood_layouts = OOD_LAYOUTS if ood_layouts is None else int(ood_layouts)
-    key = jax.random.fold_in(jax.random.key(EVAL_SEED), 3)
-    top = generator.density[1]
-    dense = dataclasses.replace(generator, family="obstacles", density=(top, min(top + 0.1, 0.95)))
-    narrow = dataclasses.replace(generator, family="shelves", min_shape=generator.max_shape, aisle=(1, 1),
-                                 gap_rate=(0.0, 0.0))
-    sets = [
-        LayoutSet("dense", f"obstacle floors, density {dense.density[0]:.2f}..{dense.density[1]:.2f} "
-                           f"(training {generator.density[0]:.2f}..{top:.2f})",
-                  generate_pool(jax.random.fold_in(key, 0), ood_layouts, dense, stream="heldout").layouts),
-        LayoutSet("narrow_shelves", f"shelf floors at {generator.max_shape[0]}x{generator.max_shape[1]}, "
-                                    "one-cell aisles, no gaps",
-                  generate_pool(jax.random.fold_in(key, 1), ood_layouts, narrow, stream="heldout").layouts),
-    ]
-    height, width = generator.max_shape
-    for name, side in (("8x8", 8), ("12x12", 12)):
-        if side <= min(height, width):
-            sets.append(LayoutSet(f"study_{name}", f"the study's {name} map, padded, every item",
-                                  stack([study_layout(name, generator.max_shape)])))
-    rows, cols = parse_movingai(MOVINGAI_WAREHOUSE).shape
-    if rows <= height and cols <= width:
-        items = min(generator.max_items, 8)
-        placements = movingai_layouts(generator.max_shape, num_items=items)
-        sets.append(LayoutSet("movingai", f"a {rows}x{cols} MovingAI .map warehouse, {placements.num_items.shape[0]} "
-                                          f"drawn placements of start, goal and {items} items", placements))
-    return sets
-
-
 def evaluate_sets(greedy_action: GreedyFn, network_params: Any, env, params, sets: Sequence[LayoutSet],
                   seeds: Sequence[int], overall: str | None = None, sample_action: SampleFn | None = None,
                   key: jax.Array | None = None) -> dict[str, Any]:
@@ -360,64 +192,6 @@ def evaluate_sets(greedy_action: GreedyFn, network_params: Any, env, params, set
     return report
 
 
-def layout_file_sets(paths: Sequence[str], max_shape: tuple[int, int], num_items: int = 8) -> list[LayoutSet]:
-    """One :class:`LayoutSet` per map file, padded to ``max_shape`` (the run's observation), checked.
-
-    ASCII maps carry their start, goal and items; a MovingAI map gets ``num_items``
-    items (fewer if it is small) and a start and goal drawn from a fixed key.
-
-    Raises:
-        ValueError: naming the file: a missing file, a malformed map, or a floor
-            larger than ``max_shape``, which the run's observation cannot represent.
-    """
-    sets = []
-    for index, name in enumerate(paths):
-        path = Path(name)
-        if not path.is_file():
-            raise ValueError(f"--layout {path}: no such file")
-        text = path.read_text()
-        try:
-            if is_movingai(path, text):
-                blocked = parse_movingai(text, str(path))
-                if blocked.shape[0] > max_shape[0] or blocked.shape[1] > max_shape[1]:
-                    raise ValueError(f"{path} is {blocked.shape[0]}x{blocked.shape[1]}, larger than max_shape "
-                                     f"{max_shape[0]}x{max_shape[1]}")
-                items = max(1, min(num_items, int((~blocked).sum()) - 2))
-                layout = load_map(path, max_shape=max_shape, max_items=items, num_items=items,
-                                  key=jax.random.fold_in(jax.random.key(EVAL_SEED), 4))
-            else:
-                layout = load_map(path, max_shape=max_shape)
-        except ValueError as error:
-            message = str(error)
-            if "larger than max_shape" in message:
-                message += (f"; the run's observation covers floors of at most {max_shape[0]}x{max_shape[1]} "
-                            "(its environment's padded shape)")
-            raise ValueError(message if str(path) in message else f"{path}: {message}") from None
-        sets.append(LayoutSet(str(path) if str(path) not in {s.name for s in sets} else f"{path}#{index}",
-                              f"{'MovingAI' if is_movingai(path, text) else 'ASCII'} map, "
-                              f"{int(layout.height)}x{int(layout.width)}, {int(layout.num_items)} items",
-                              stack([layout])))
-    return sets
-
-
-def heldout_set(generator, training: LayoutPool | np.ndarray, count: int | None = None) -> tuple[LayoutSet, int]:
-    """``(set, overlap)``: ``count`` (:data:`FINAL_HELDOUT_LAYOUTS`) held-out layouts minus any training saw.
-
-    ``training``: the training pool, or the hashes of every layout training saw (a refreshed pool:
-    :meth:`~wrl_jax.envs.procedural.env.ProceduralWarehouse.training_layout_hashes`). ``overlap``
-    counts the generated layouts whose hash is among them (dropped).
-    """
-    count = FINAL_HELDOUT_LAYOUTS if count is None else int(count)
-    pool = generate_pool(jax.random.fold_in(jax.random.key(EVAL_SEED), 1), count, generator, stream="heldout")
-    seen = pool_hashes(training) if isinstance(training, LayoutPool) else np.asarray(training, dtype=np.uint64)
-    keep = disjoint_from(pool, seen)
-    layouts = jax.tree.map(lambda leaf: leaf[np.flatnonzero(keep)], pool.layouts)
-    overlap = int((~keep).sum())
-    return LayoutSet("heldout", f"{int(keep.sum())} held-out layouts of the training generator "
-                                f"(key stream disjoint from training; {overlap} shared by hash, dropped)",
-                     layouts), overlap
-
-
 def final_report(context: FinalContext) -> dict[str, Any]:
     """The generalization measurement after training: ``{"heldout": ..., "ood": {set: ...}, ...}`` (host, once).
 
@@ -441,100 +215,6 @@ def final_report(context: FinalContext) -> dict[str, Any]:
                                 key=jax.random.fold_in(jax.random.key(EVAL_SEED), 5))
         result["heldout_sampled"] = sampled["heldout"]
     return {**result, "final_report_seconds": time.perf_counter() - tic}
-
-
-# ------------------------------------------------------------------ reports
-AIM_DELIVERY = 0.99
-AIM_EXCESS = 0.05
-"""The generalization aim on held-out layouts: at least 99 % delivered, at most 5 % mean excess over the optimum."""
-
-
-def seeds_at_aim(entry: dict[str, Any]) -> int:
-    """Seeds of a final-report set entry at :data:`AIM_DELIVERY` and :data:`AIM_EXCESS` or better."""
-    return sum(1 for row in entry["per_seed"] if row["delivery_rate"] >= AIM_DELIVERY
-               and row["excess_fraction"] is not None and row["excess_fraction"] <= AIM_EXCESS)
-
-
-def _seeds_at_aim(entry: dict[str, Any]) -> str:
-    return f"{seeds_at_aim(entry)} of {len(entry['per_seed'])}"
-
-
-def _percent(value: float | None) -> str:
-    return "n/a" if value is None else f"{value:.1%}"
-
-
-def _steps(value: float | None) -> str:
-    return "n/a" if value is None else f"{value:.2f}"
-
-
-def format_report(summary: dict[str, Any], label: str, convergence_steps: Sequence[int | None] | None = None,
-                  study: dict[str, str] | None = None) -> str:
-    """A Markdown table of the periodic held-out evaluation, then the final held-out set's headline if present."""
-    del study
-    rows = [
-        ("held-out layouts x items", f"{summary['eval_layouts']} layouts, {summary['episodes_per_seed']} episodes"),
-        ("delivered", f"{summary['success_rate']:.1%}"),
-        ("at the BFS optimum", f"{summary['optimal_rate']:.1%}"),
-        ("mean steps over the optimum (delivered)", f"{summary['mean_excess']:.2f}"),
-        ("collisions per episode", f"{summary['collisions_per_episode']:.2f}"),
-    ]
-    heldout = summary.get("heldout")
-    if heldout:
-        rows += [
-            (f"final: {heldout['layouts']} held-out layouts, delivered", _percent(heldout["delivery_rate"])),
-            ("final: mean excess over the optimum",
-             f"{_steps(heldout['mean_excess'])} steps ({_percent(heldout['excess_fraction'])})"),
-            ("final: seeds at >= 99% delivered and <= 5% excess", _seeds_at_aim(heldout)),
-        ]
-    sampled = summary.get("heldout_sampled")
-    if sampled:
-        rows += [
-            ("final, sampled policy: delivered / excess",
-             f"{_percent(sampled['delivery_rate'])} / {_percent(sampled['excess_fraction'])}"),
-            ("final, sampled policy: seeds at >= 99% delivered and <= 5% excess", _seeds_at_aim(sampled)),
-        ]
-    if convergence_steps is not None:
-        solved = [step for step in convergence_steps if step is not None]
-        rows.append(("seeds solved", f"{len(solved)} of {len(convergence_steps)}"))
-    lines = [f"| {label} | |", "|---|---|", *(f"| {name} | {value} |" for name, value in rows)]
-    return "\n".join(lines)
-
-
-def format_sets(report: dict[str, dict[str, Any]]) -> str:
-    """Markdown: one row per set (all seeds), then one row per set with each seed's delivered / excess."""
-    if not report:
-        return ""
-    header = ("| set | layouts | episodes/seed | delivered | at optimum | mean excess (steps) | excess | "
-              "collisions/episode |")
-    lines = [header, "|---|---:|---:|---:|---:|---:|---:|---:|"]
-    for name, row in report.items():
-        per_seed_episodes = row["episodes"] // max(len(row["per_seed"]), 1)
-        lines.append(f"| {name} | {row['layouts']} | {per_seed_episodes} | {_percent(row['delivery_rate'])} | "
-                     f"{_percent(row['optimal_rate'])} | {_steps(row['mean_excess'])} | "
-                     f"{_percent(row['excess_fraction'])} | {row['collisions_per_episode']:.3f} |")
-    seeds = [entry["seed"] for entry in next(iter(report.values()))["per_seed"]]
-    lines += ["", "| set (per seed: delivered / excess) | " + " | ".join(f"seed {seed}" for seed in seeds) + " |",
-              "|---|" + "---:|" * len(seeds)]
-    for name, row in report.items():
-        cells = [f"{_percent(entry['delivery_rate'])} / {_percent(entry['excess_fraction'])}"
-                 for entry in row["per_seed"]]
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-def format_details(summary: dict[str, Any]) -> str:
-    """The final report's sets (held-out, then out-of-distribution) as Markdown tables; empty without one."""
-    if "heldout" not in summary:
-        return ""
-    report = {"heldout": summary["heldout"], **summary.get("ood", {})}
-    if "heldout_sampled" in summary:  # the sampled policy's row (PPO), beside the greedy ones
-        report["heldout (sampled policy)"] = summary["heldout_sampled"]
-    seconds = summary.get("final_report_seconds")
-    lines = ["Greedy policy of every seed (the sampled policy's row: actions drawn from it), every real (layout, "
-             "item) episode; excess is over delivered episodes, as a fraction of their mean BFS optimum."
-             + (f" Final evaluation: {seconds:.1f} s." if seconds is not None else ""), "", format_sets(report), ""]
-    lines += [f"- `{name}`: {row['description']}" for name, row in report.items()]
-    return "\n".join(lines)
 
 
 EVALUATION = FamilyEvaluation(

@@ -14,10 +14,12 @@ from collections.abc import Sequence
 import jax
 import jax.numpy as jnp
 
-from wrl_jax.envs.procedural.env import ProceduralParams, ProceduralWarehouse, pool_arrays
+from wrl_jax.envs.procedural.env import ProceduralWarehouse
 from wrl_jax.envs.procedural.generators import GeneratorConfig
 from wrl_jax.envs.procedural.layout import PaddedLayout
 from wrl_jax.envs.procedural.pool import LayoutPool, generate_pool, pool_from_layouts
+from wrl_jax.envs.procedural.pool_params import pool_arrays
+from wrl_jax.envs.procedural.types import ProceduralParams
 from wrl_jax.envs.warehouse.types import REWARD_DEFAULTS
 
 DEFAULT_MAX_STEPS = 300

@@ -3,7 +3,7 @@
 :func:`layout_image` draws one cell per pixel block in the warehouse palette
 (:data:`wrl_jax.envs.warehouse.render.COLORS`, plus a darker grey for the
 off-grid padding around a floor smaller than the padded shape).
-:func:`render_frame` draws a :class:`~wrl_jax.envs.procedural.env.ProceduralState`
+:func:`render_frame` draws a :class:`~wrl_jax.envs.procedural.types.ProceduralState`
 with the warehouse's :func:`~wrl_jax.envs.warehouse.render.render_frame` (the
 same robot, item, goal and timer), and :func:`record_episode` runs one greedy
 episode in a jitted ``lax.scan`` and renders every state in one ``vmap``.
