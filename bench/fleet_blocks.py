@@ -40,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     from wrl_jax.agents import get_spec
     from wrl_jax.agents.base import config_from_dict
     from wrl_jax.cli.options import EnvOptions, build
-    from wrl_jax.envs.fleet.env import propose
+    from wrl_jax.envs.fleet.conflicts import propose
     from wrl_jax.envs.fleet.evaluation import EVAL_SEED
     from wrl_jax.envs.fleet.metrics import BLOCK_CAUSES as CLASSES
     from wrl_jax.envs.fleet.metrics import block_causes

@@ -9,7 +9,7 @@ same load on a shared machine), on ``Fleet-12x12-v0`` (FLEET_SPEC.md):
   per step, drawn for the whole call at its start inside the timed program (see ``jax_program``),
   everything a learner reads (``obs``, ``final_obs``,
   reward, truncation) summed into a checksum so nothing is dropped;
-* ``jax core``: the transition alone (:func:`wrl_jax.envs.fleet.env.fleet_transition`
+* ``jax core``: the transition alone (:func:`wrl_jax.envs.fleet.dynamics.fleet_transition`
   with its task draw; no observation, no reset), to show what the observation costs;
 * ``jax pibt``: the same full step with PIBT actions
   (:func:`wrl_jax.envs.fleet.planners.plan`) and the priorities carried and
@@ -87,7 +87,7 @@ from wrl_jax.core.observation import observation_size  # noqa: E402
 from wrl_jax.core.random import random_words, split_keys  # noqa: E402
 from wrl_jax.core.registry import make  # noqa: E402
 from wrl_jax.envs.fleet import metrics, planners  # noqa: E402
-from wrl_jax.envs.fleet.env import draw_tasks, fleet_transition  # noqa: E402
+from wrl_jax.envs.fleet.dynamics import draw_tasks, fleet_transition  # noqa: E402
 from wrl_jax.envs.fleet.reference import FleetReference  # noqa: E402
 
 ENV = "Fleet-12x12-v0"

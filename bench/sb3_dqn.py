@@ -80,7 +80,7 @@ def run_ours(config, seeds: list[int], eval_every_updates: int) -> dict[str, Any
     result = training.run(trainer, None, runners=runners)
     episodes = training.final_evaluation(trainer, result)
     summary = evaluation.summarize(episodes, seeds)
-    first = result.convergence.first_optimal_update(len(seeds))
+    first = result.convergence.first_solved_update(len(seeds))
     steps = trainer.steps_per_update
     updates = result.updates_done * len(seeds)
     return {

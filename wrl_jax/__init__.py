@@ -40,7 +40,7 @@ _LAZY = {
     "save_gif": "wrl_jax.envs.warehouse.render",
     "LegacyStepAPI": "wrl_jax.wrappers.legacy",
     "WarehouseGymEnv": "wrl_jax.wrappers.gymnasium",
-    "WarehouseVectorEnv": "wrl_jax.wrappers.gymnasium",
+    "WarehouseVectorEnv": "wrl_jax.wrappers.gymnasium_vector",
 }
 
 

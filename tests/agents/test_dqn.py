@@ -4,6 +4,7 @@ Compiles are the cost here, so the tests share a few small programs
 (module-scoped fixtures) on tiny layouts.
 """
 
+import copy
 import dataclasses
 import functools
 import json
@@ -143,26 +144,29 @@ def test_target_bootstraps_through_truncation():
         anneal_lr=True,
     )
 
-    class TruncationAsTermination(DQN):
-        """The mistake this test guards against."""
+    class TruncationAsTermination(type(env)):
+        """The mistake this test guards against: the learner's steps report a truncation as a termination."""
 
-        def _step_envs(self, key, state, action, env_params):
-            obs, st, reward, terminated, truncated, info = super()._step_envs(key, state, action, env_params)
+        def batch_step(self, key, state, action, env_params):
+            obs, st, reward, terminated, truncated, info = super().batch_step(key, state, action, env_params)
             return obs, st, reward, terminated | truncated, jnp.zeros_like(truncated), info
+
+    wrong_env = copy.copy(env)
+    wrong_env.__class__ = TruncationAsTermination
 
     start_obs, _ = env.reset_to_item(0, params)
     q_right = 51.5 + gamma * 202.0
     q_up = -0.5 + gamma * q_right  # 209.5
     q_up_if_terminal = 0.5 * (q_up + -0.5)  # about 104.5
     learned = {}
-    for cls in (DQN, TruncationAsTermination):
-        algo = cls(config, env, params)
+    for name, learner_env in (("bootstrapped", env), ("truncation as termination", wrong_env)):
+        algo = DQN(config, learner_env, params)
         runner, _ = jax.jit(make_train(algo))(jax.random.PRNGKey(0))
-        learned[cls] = np.asarray(algo.q_values(runner.params, start_obs)) / config.reward_scale
-    up, _, _, right = learned[DQN]
+        learned[name] = np.asarray(algo.q_values(runner.params, start_obs)) / config.reward_scale
+    up, _, _, right = learned["bootstrapped"]
     assert right == pytest.approx(q_right, rel=0.02)
-    assert up == pytest.approx(q_up, rel=0.02), learned[DQN]
-    wrong_up = learned[TruncationAsTermination][0]
+    assert up == pytest.approx(q_up, rel=0.02), learned["bootstrapped"]
+    wrong_up = learned["truncation as termination"][0]
     assert wrong_up < 0.75 * q_up and wrong_up == pytest.approx(q_up_if_terminal, rel=0.25), learned
 
 

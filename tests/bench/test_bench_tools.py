@@ -22,7 +22,7 @@ def run_tool(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_step_profile_splits_over_devices_and_times_a_baseline():
-    done = run_tool("bench/fleet_step_profile.py", "--robots", "2", "--batch", "16", "--devices", "2", "--horizon",
+    done = run_tool("bench/investigations/fleet_step_profile.py", "--robots", "2", "--batch", "16", "--devices", "2", "--horizon",
                     "4", "--repeats", "1", "--parts", "core", "obs", "--baseline", "wrl_jax/envs/fleet/env.py",
                     "--trace")
     assert done.returncode == 0, done.stderr
@@ -42,22 +42,22 @@ def test_pibt_profile_refuses_a_baseline_that_plans_other_moves(tmp_path):
     source = (ROOT / "wrl_jax/envs/fleet/planners.py").read_text()
     same = tmp_path / "same.py"
     same.write_text(source)
-    done = run_tool("bench/pibt_profile.py", "--robots", "2", "--batch", "32", "--repeats", "1", "--baseline", str(same))
+    done = run_tool("bench/investigations/pibt_profile.py", "--robots", "2", "--batch", "32", "--repeats", "1", "--baseline", str(same))
     assert done.returncode == 0, done.stderr
     assert "same moves" in done.stdout
     other = tmp_path / "other.py"  # a planner that always waits
     other.write_text(source.replace("    return pibt_choices(candidate_ids(pos, size), cand_dist, priority)",
                                     "    return jnp.full(pos.shape[0], WAIT, dtype=jnp.int32)"))
     assert other.read_text() != source
-    done = run_tool("bench/pibt_profile.py", "--robots", "2", "--batch", "32", "--repeats", "1", "--baseline", str(other))
+    done = run_tool("bench/investigations/pibt_profile.py", "--robots", "2", "--batch", "32", "--repeats", "1", "--baseline", str(other))
     assert done.returncode != 0
     assert "plans other moves" in done.stderr
 
 
 def test_observation_floor_sums_what_it_writes_and_splits_over_devices():
-    """``bench/observation_floor.py``: the written arrays are summed exactly (checked against NumPy in this
+    """``bench/investigations/observation_floor.py``: the written arrays are summed exactly (checked against NumPy in this
     process, one device) and the command line splits the batch over host devices."""
-    sys.path.insert(0, str(ROOT / "bench"))
+    sys.path.insert(0, str(ROOT / "bench" / "investigations"))
     import numpy as np
 
     from observation_floor import floor_program
@@ -67,7 +67,7 @@ def test_observation_floor_sums_what_it_writes_and_splits_over_devices():
     base = np.broadcast_to(np.arange(width), (batch, robots, width))
     expected = sum(float((base + t).sum() + (base - t).sum()) for t in range(horizon))
     assert total == expected
-    done = run_tool("bench/observation_floor.py", "--batch", "8", "--devices", "2", "--horizon", "2", "--repeats", "1")
+    done = run_tool("bench/investigations/observation_floor.py", "--batch", "8", "--devices", "2", "--horizon", "2", "--repeats", "1")
     assert done.returncode == 0, done.stderr
     rows = json.loads(done.stdout.strip().splitlines()[-1])
     assert rows[0]["devices"] == 2 and rows[0]["robot_steps_per_s"] > 0

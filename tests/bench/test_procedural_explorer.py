@@ -1,4 +1,4 @@
-"""The free-space explorer of ``bench/procedural_explorer.py``: the yardstick for what a window costs.
+"""The free-space explorer of ``bench/investigations/procedural_explorer.py``: the yardstick for what a window costs.
 
 Its numbers explain the procedural policy's excess (docs/procedural.md), so they must be right: a
 robot that sees the whole floor walks the BFS optimum; one that sees a little walks into a dead end
@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 @pytest.fixture(scope="module")
 def explorer():
-    spec = importlib.util.spec_from_file_location("procedural_explorer", ROOT / "bench" / "procedural_explorer.py")
+    spec = importlib.util.spec_from_file_location("procedural_explorer", ROOT / "bench" / "investigations" / "procedural_explorer.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

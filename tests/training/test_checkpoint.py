@@ -136,8 +136,13 @@ def test_learning_curve_plot(tmp_path):
          "eval_optimal_rate": float("nan") if u % 2 else 0.2 * u}
         for u in range(1, 6) for s in range(3)
     ]
-    path = metrics_io.plot_learning_curves(data, tmp_path / "curve.png", title="test", optimal_return=5.0)
+    path = metrics_io.plot_learning_curves(data, tmp_path / "curve.png", title="test", optimal_return=5.0,
+                                           panels=[("delivery_rate", "delivered"), ("eval_optimal_rate", "optimal"),
+                                                   ("eval_missing", "a metric no row has")])
     assert path.exists() and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    from PIL import Image
+
+    assert Image.open(path).size[0] == 3 * 550  # return, delivered, optimal: a panel no row has is left out
 
 
 def test_a_run_saved_before_the_package_move_still_evaluates_the_same(tmp_path):

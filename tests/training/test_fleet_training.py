@@ -14,12 +14,12 @@ import pytest
 
 import wrl_jax
 from wrl_jax import training
-from wrl_jax.cli import train as cli_train
 from wrl_jax.agents import ppo_config
 from wrl_jax.agents.ppo import PPO
+from wrl_jax.cli import train as cli_train
 from wrl_jax.envs.fleet import evaluation as fleet_evaluation
 from wrl_jax.envs.fleet import metrics
-from wrl_jax.envs.fleet.env import global_state
+from wrl_jax.envs.fleet.observation import global_state
 
 TINY = dataclasses.replace(ppo_config.FLEET, num_envs=4, num_steps=8, num_minibatches=2, update_epochs=1,
                            hidden_sizes=(16, 16), total_timesteps=4 * 8 * 2)
@@ -82,8 +82,8 @@ def test_bad_fleet_configurations_fail_before_compiling():
         PPO(dataclasses.replace(ppo_config.DEFAULT, critic="centralized"), warehouse, params)
     with pytest.raises(ValueError, match="critic must be one of"):
         dataclasses.replace(ppo_config.DEFAULT, critic="global").validate()
-    from wrl_jax.agents.dqn_config import DEFAULT as DQN_DEFAULT
     from wrl_jax.agents.dqn import DQN
+    from wrl_jax.agents.dqn_config import DEFAULT as DQN_DEFAULT
 
     fleet, fleet_params = wrl_jax.make("Fleet-12x12-v0", num_robots=2)
     with pytest.raises(ValueError, match="DQN is single-agent"):

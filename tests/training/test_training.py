@@ -140,8 +140,8 @@ def test_convergence_first_and_stable():
     flags = np.array([[0, 1], [1, 1], [0, 1], [1, 1]], dtype=np.float32)
     conv.record({"eval_all_optimal": flags}, start=0)
     assert conv.updates == [1, 2, 3, 4]
-    assert conv.first_optimal_update(2) == [2, 1]
-    assert conv.stable_optimal_update(2) == [4, 1]
+    assert conv.first_solved_update(2) == [2, 1]
+    assert conv.stable_solved_update(2) == [4, 1]
     assert training.Convergence.from_json(conv.to_json()) == conv
 
 

@@ -13,10 +13,11 @@ from gymnasium.utils.env_checker import check_env, data_equivalence
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
 
 import wrl_jax
-from wrl_jax.wrappers import gymnasium as gym_env
-from wrl_jax.wrappers.gymnasium import INFO_FLAGS, WarehouseGymEnv, WarehouseVectorEnv
 from wrl_jax.envs.warehouse.render import render_frame
 from wrl_jax.envs.warehouse.routes import oracle_action, route_tables
+from wrl_jax.wrappers import gymnasium as gym_env
+from wrl_jax.wrappers.gymnasium import INFO_FLAGS, WarehouseGymEnv
+from wrl_jax.wrappers.gymnasium_vector import WarehouseVectorEnv
 
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # in case pygame is installed: no window needed
 

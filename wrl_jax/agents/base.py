@@ -172,18 +172,20 @@ class EpisodeStats:
 class EpisodeSums:
     """Sums over the episodes that ended within some transitions.
 
-    ``mean return = return_sum / episodes``; ``delivery rate = delivered / episodes``.
+    ``mean return = return_sum / episodes``; ``terminated`` counts the episodes that ended by
+    termination (the task done) rather than truncation: a family's
+    :class:`~wrl_jax.core.evaluation.TrainRate` turns it into a rate (the warehouse's delivery rate).
     """
 
     episodes: jax.Array
-    delivered: jax.Array
+    terminated: jax.Array
     return_sum: jax.Array
     length_sum: jax.Array
 
     def as_metrics(self) -> Metrics:
         return {
             "episodes": self.episodes,
-            "delivered": self.delivered,
+            "terminated": self.terminated,
             "return_sum": self.return_sum,
             "length_sum": self.length_sum,
         }
@@ -202,7 +204,7 @@ def track_episodes(
     done = terminated | truncated
     sums = EpisodeSums(
         episodes=done.sum().astype(jnp.float32),
-        delivered=terminated.sum().astype(jnp.float32),
+        terminated=terminated.sum().astype(jnp.float32),
         return_sum=jnp.where(done, episode_return, 0.0).sum(),
         length_sum=jnp.where(done, episode_length, 0).sum().astype(jnp.float32),
     )

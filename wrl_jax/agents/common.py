@@ -97,6 +97,12 @@ def clip_by_global_norm(grads: Any, max_norm: jax.Array) -> tuple[Any, jax.Array
     return jax.tree.map(lambda g: g * scale, grads), norm
 
 
+def count_events(env: Any, info: dict[str, jax.Array]) -> dict[str, jax.Array]:
+    """A batched step's counts of the info flags the environment names (``env.event_metrics``),
+    as float32 scalars under their metric names: what every learner logs beside its losses."""
+    return {metric: info[flag].sum().astype(jnp.float32) for flag, metric in env.event_metrics.items()}
+
+
 def polyak_update(target: Any, online: Any, tau: jax.Array) -> Any:
     """A target network moved towards the online one: ``tau * online + (1 - tau) * target`` per leaf.
 

@@ -51,9 +51,10 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from wrl_jax.agents import base
 from wrl_jax.agents.base import (
-    AlgoSpec,
     Algorithm,
+    AlgoSpec,
     EpisodeStats,
     EpisodeSums,
     Metrics,
@@ -63,14 +64,15 @@ from wrl_jax.agents.base import (
 )
 from wrl_jax.agents.common import (
     clip_by_global_norm,
+    count_events,
     linear_decay,
     polyak_update,
 )
-from wrl_jax.agents import base
 from wrl_jax.agents.dqn_config import PRESETS, STUDY_TABLE3, DQNConfig, DQNHyper
 from wrl_jax.agents.networks import MLP, mlp_forward_flops
 from wrl_jax.agents.replay import ReplayBuffer, Transition
 from wrl_jax.core.environment import Environment
+
 
 # ---------------------------------------------------------------------- state
 @struct.dataclass
@@ -186,7 +188,7 @@ class DQN(Algorithm[DQNRunner]):
         # Before learning starts, actions are uniformly random (as in SB3).
         return jnp.where(timestep < self.config.learning_starts, 1.0, eps)
 
-    def _env_step(self, runner: DQNRunner, timestep: jax.Array) -> tuple[DQNRunner, tuple[EpisodeSums, jax.Array]]:
+    def _env_step(self, runner: DQNRunner, timestep: jax.Array) -> tuple[DQNRunner, tuple[EpisodeSums, dict[str, jax.Array]]]:
         """One vector step: act epsilon-greedily, step, store the transitions."""
         config = self.config
         # All randomness of a vector step comes from one split and one draw:
@@ -196,7 +198,7 @@ class DQN(Algorithm[DQNRunner]):
         explore = _unit_float(bits[0]) < self.epsilon(runner.hyper, timestep)
         random_action = (bits[1] % self.env.num_actions).astype(jnp.int32)
         action = jnp.where(explore, random_action, self.greedy_action(runner.params, runner.obs))
-        obs, env_state, reward, terminated, truncated, info = self._step_envs(
+        obs, env_state, reward, terminated, truncated, info = self.env.batch_step(
             env_key, runner.env_state, action, runner.env_params
         )
         buffer = runner.buffer.add(
@@ -209,18 +211,8 @@ class DQN(Algorithm[DQNRunner]):
             )
         )
         stats, sums = track_episodes(runner.episode_stats, reward, terminated, truncated)
-        # Shelf collisions, where the family reports them (the warehouse's "collision" flag).
-        collisions = info["collision"].sum().astype(jnp.float32) if "collision" in info else jnp.float32(0.0)
         runner = runner.replace(key=key, buffer=buffer, env_state=env_state, obs=obs, episode_stats=stats)
-        return runner, (sums, collisions)
-
-    def _step_envs(
-        self, key: jax.Array, state: Any, action: jax.Array, env_params: Any
-    ) -> tuple[jax.Array, Any, jax.Array, jax.Array, jax.Array, dict[str, jax.Array]]:
-        """Every environment's transition with automatic reset (the environment's
-        :meth:`~wrl_jax.core.environment.Environment.batch_step`, one key for the
-        batch; ``info["final_obs"]`` is the observation reached)."""
-        return self.env.batch_step(key, state, action, env_params)
+        return runner, (sums, count_events(self.env, info))
 
     def loss_fn(
         self, params: Any, target_params: Any, hyper: DQNHyper, batch: Transition
@@ -277,7 +269,7 @@ class DQN(Algorithm[DQNRunner]):
             runner = runner.replace(env_params=self.env.params_for_update(runner.env_params, update_index))
         first_step = update_index * config.steps_per_update
         timesteps = first_step + config.num_envs * jnp.arange(config.train_freq, dtype=jnp.int32)
-        runner, (sums, collisions) = jax.lax.scan(self._env_step, runner, timesteps)
+        runner, (sums, events) = jax.lax.scan(self._env_step, runner, timesteps)
         done = first_step + config.steps_per_update  # transitions collected after this update
 
         # SB3 trains once more than learning_starts transitions were collected.
@@ -294,7 +286,7 @@ class DQN(Algorithm[DQNRunner]):
 
         metrics = {
             **sum_episode_sums(sums).as_metrics(),
-            "collisions_sum": collisions.sum(),  # training moves into shelves (a sum: log groups add it)
+            **jax.tree.map(jnp.sum, events),  # the environment's event counts (sums: log groups add them)
             "loss": loss,
             "q_mean": q_mean,
             "epsilon": self.epsilon(runner.hyper, done - 1),

@@ -26,14 +26,13 @@ Stable-Baselines3 with default settings (no ``VecNormalize``) does not scale.
 Static fields of :class:`PPOConfig` fix shapes or program structure; the traced
 ones (:class:`PPOHyper`) live in the runner state, so a sweep can ``vmap`` them.
 
-The settings and presets are :mod:`wrl_jax.agents.ppo_config`, the observation
-encodings :mod:`wrl_jax.agents.encoding`, the initialiser :mod:`wrl_jax.agents.initializers`;
+The settings and presets are :mod:`wrl_jax.agents.ppo_config`, the networks (inputs, forward
+pass, flat parameters, FLOPs) :mod:`wrl_jax.agents.ppo_networks`;
 what PPO shares with DQN lives in :mod:`wrl_jax.agents.common`.
 """
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import jax
@@ -41,18 +40,15 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from wrl_jax.agents import base
 from wrl_jax.agents.base import (
-    AlgoSpec,
     Algorithm,
+    AlgoSpec,
     EpisodeStats,
     sum_episode_sums,
     track_episodes,
 )
-from wrl_jax.agents.common import clip_by_global_norm, linear_decay
-from wrl_jax.agents import base, propagation
-from wrl_jax.agents.encoding import agent_observation_size, encoded_size, onehot_coordinates, onehot_rows
-from wrl_jax.agents.initializers import init_mlp_params
-from wrl_jax.agents.networks import ACTIVATIONS, mlp_forward_flops
+from wrl_jax.agents.common import clip_by_global_norm, count_events, linear_decay
 from wrl_jax.agents.ppo_config import (
     FLEET_ENV_DEFAULTS,
     PRESETS,
@@ -61,6 +57,7 @@ from wrl_jax.agents.ppo_config import (
     PPOConfig,
     PPOHyper,
 )
+from wrl_jax.agents.ppo_networks import ActorCritic
 from wrl_jax.core.environment import Environment
 
 
@@ -88,24 +85,19 @@ class Transition(struct.PyTreeNode):
     final_obs: jax.Array
     global_state: Any = None  # (num_envs, G) with a centralized critic, else None
     final_global_state: Any = None
-    events: Any = None  # multi-agent: {"<flag>_sum": scalar} counts of the step's per-robot info flags
-
-
-AGENT_EVENTS = {"delivered": "deliveries_sum", "robot_block": "robot_blocks_sum", "shelf_hit": "shelf_hits_sum"}
-"""Per-agent info flags a multi-agent rollout counts (where the env has them), and their metric names."""
+    events: Any = None  # {metric: scalar}: the step's counts of the info flags in ``env.event_metrics``
 
 
 _ADAM_EPS = 1e-5  # as in Stable-Baselines3 and CleanRL
 
 
-class PPO(Algorithm[PPORunner]):
+class PPO(ActorCritic, Algorithm[PPORunner]):
     """PPO for one seed; see the module docstring. ``PPO(config, env, env_params)``."""
 
     name = "ppo"
 
     def __init__(self, config: PPOConfig, env: Environment, env_params: Any):
         super().__init__(config, env, env_params)
-        self.activation = ACTIVATIONS[config.activation]
         self.adam = optax.scale_by_adam(eps=_ADAM_EPS)
         self.num_agents = getattr(env, "num_agents", None)  # None: single agent, no agent axis
         if config.critic == "centralized" and (self.num_agents is None or not hasattr(env, "global_state")):
@@ -114,102 +106,7 @@ class PPO(Algorithm[PPORunner]):
                 f"{env.name} is a single-agent {getattr(env, 'family', '?')!r} environment: use critic='local'"
             )
         self.centralized = config.critic == "centralized"
-        self.global_size = int(env.global_state_size()) if self.centralized else 0
-        self.coordinates = onehot_coordinates(env, config.obs_encoding)
-        self.map_layout = None  # (offset, H, W) of the map the propagation encoder plans over
-        if config.encoder == "propagation":
-            layout = env.map_observation() if hasattr(env, "map_observation") else None
-            self.map_layout = propagation.check_map_layout(layout, env.name, agent_observation_size(env))
-        # The runner keeps actor and critic parameters as one flat vector, so the
-        # optimizer and the gradient clip are a few fused kernels instead of a
-        # few per weight array: a third fewer kernels for XLA to compile.
-        self.num_features = encoded_size(env, config.obs_encoding)
-        if self.map_layout is not None:  # the map is replaced by the values around the robot
-            self.num_features += propagation.NUM_FEATURES - 3 * self.map_layout[1] * self.map_layout[2]
-        template = jax.eval_shape(self._init_networks, jax.random.PRNGKey(0))
-        leaves, self._params_treedef = jax.tree_util.tree_flatten(template)
-        self._param_shapes = [leaf.shape for leaf in leaves]
-        self.num_params = sum(math.prod(shape) for shape in self._param_shapes)
-
-    def _init_networks(self, key: jax.Array) -> dict[str, Any]:
-        sizes = tuple(self.config.hidden_sizes)
-        critic_inputs = self.num_features + self.global_size
-        actor, critic = init_mlp_params(
-            key, [(self.num_features, sizes, self.env.num_actions, 0.01), (critic_inputs, sizes, 1, 1.0)]
-        )
-        if self.map_layout is not None:  # one propagation, the actor's, read by both
-            actor["propagation"] = propagation.init_propagation()
-        return {"actor": actor, "critic": critic}
-
-    def network_inputs(self, actor: dict[str, Any], obs: jax.Array) -> jax.Array:
-        """What the MLPs read: ``obs`` itself, or with ``encoder="propagation"`` the observation
-        with its map replaced by the values around the robot, propagated with the actor's
-        learned costs (:func:`wrl_jax.agents.propagation.map_features`). The critic reads
-        the same: one propagation per observation, and the value loss teaches the costs too."""
-        if self.map_layout is None:
-            return obs
-        return propagation.map_features(actor["propagation"], obs, self.map_layout, self.config.propagation_rounds)
-
-    def forward(
-        self,
-        network: dict[str, Any],
-        obs: jax.Array,
-        global_state: jax.Array | None = None,
-        *,
-        inputs: jax.Array | None = None,
-    ) -> jax.Array:
-        """One network (actor logits or critic value) on observations ``(..., obs_size)``.
-
-        With ``obs_encoding="raw"`` this is exactly ``networks.MLP.apply``. With
-        ``"onehot"`` the first layer multiplies a one-hot vector, so it is computed
-        as what that product is, a sum of a few kernel rows (a gather: 6 for the
-        warehouse), not as a dense matmul over the mostly-zero inputs.
-
-        ``global_state`` ``(..., G)`` (the centralized critic only) is the rest of
-        the first layer's input, shared by the ``K`` agents of ``obs`` ``(..., K, obs_size)``:
-        its product with the kernel is computed once per environment and broadcast.
-
-        ``inputs``: :meth:`network_inputs` of ``obs``, when the caller computed them
-        already (with ``encoder="propagation"`` the critic has no propagation of its own
-        and needs them). The actor then adds its learned multiple of the action features
-        to its logits: a policy that follows the propagated values from the start.
-        """
-        if inputs is None:
-            if self.map_layout is not None and "propagation" not in network:
-                raise ValueError("with encoder='propagation' the critic reads the actor's propagation: "
-                                 "pass inputs=network_inputs(actor, obs)")
-            inputs = self.network_inputs(network, obs)
-        obs = inputs
-        layers = [network["params"][f"Dense_{i}"] for i in range(len(network["params"]))]
-        first = layers[0]
-        kernel = first["kernel"] if global_state is None else first["kernel"][: self.num_features]
-        if self.config.obs_encoding == "raw":
-            x = obs @ kernel + first["bias"]
-        else:
-            count, values = self.coordinates[0], self.coordinates[1]
-            rows = onehot_rows(obs, self.coordinates)  # (..., count) row indices into the kernel
-            extra = obs[..., count:]  # what follows the coordinates (the carrying flag, a window)
-            x = kernel[rows].sum(axis=-2) + extra @ kernel[count * values :] + first["bias"]
-        if global_state is not None:
-            x = x + (global_state @ first["kernel"][self.num_features :])[..., None, :]
-        for layer in layers[1:]:
-            x = self.activation(x) @ layer["kernel"] + layer["bias"]
-        if self.map_layout is not None and "propagation" in network:
-            x = x + network["propagation"]["prior"] * propagation.action_features(obs)
-        return x
-
-    def flatten(self, networks: dict[str, Any]) -> jax.Array:
-        """``{"actor": ..., "critic": ...}`` flax parameter trees -> the runner's flat vector."""
-        return jnp.concatenate([leaf.reshape(-1) for leaf in jax.tree_util.tree_leaves(networks)])
-
-    def unflatten(self, flat: jax.Array) -> dict[str, Any]:
-        """The runner's flat vector -> ``{"actor": ..., "critic": ...}`` flax parameter trees."""
-        leaves, offset = [], 0
-        for shape in self._param_shapes:
-            size = math.prod(shape)
-            leaves.append(flat[offset : offset + size].reshape(shape))
-            offset += size
-        return jax.tree_util.tree_unflatten(self._params_treedef, leaves)
+        self.setup_networks(config, env)
 
     @property
     def num_updates(self) -> int:
@@ -225,8 +122,7 @@ class PPO(Algorithm[PPORunner]):
         env_params = self.env_params if env_params is None else env_params
         key, k_params, k_env = jax.random.split(key, 3)
         params = self.flatten(self._init_networks(k_params))
-        env_keys = jax.random.split(k_env, self.config.num_envs)
-        obs, env_state = jax.vmap(self.env.reset, in_axes=(0, None))(env_keys, env_params)
+        obs, env_state = self.env.batch_reset(k_env, self.config.num_envs, env_params)
         return PPORunner(
             params=params,
             opt_state=self.adam.init(params),
@@ -247,7 +143,7 @@ class PPO(Algorithm[PPORunner]):
         # Every random number of the update comes from four draws made here, not
         # from draws inside the scans: each threefry call site costs compile time.
         key, k_env, k_act, k_order = jax.random.split(runner.key, 4)
-        env_keys = jax.random.split(k_env, cfg.num_steps * cfg.num_envs).reshape(cfg.num_steps, cfg.num_envs, -1)
+        env_keys = jax.random.split(k_env, cfg.num_steps)  # one per step: env.batch_step splits it per env
         agents = () if self.num_agents is None else (self.num_agents,)
         gumbel = jax.random.gumbel(k_act, (cfg.num_steps, cfg.num_envs, *agents, self.env.num_actions))
         global_states = jax.vmap(self.env.global_state, in_axes=(0, None)) if self.centralized else None
@@ -255,22 +151,21 @@ class PPO(Algorithm[PPORunner]):
         # 1. rollout
         def env_step(carry, step_inputs):
             env_state, obs, stats = carry
-            step_keys, step_gumbel = step_inputs
+            step_key, step_gumbel = step_inputs
             logits = self.forward(networks["actor"], obs)
             log_probs = jax.nn.log_softmax(logits)
             action = jnp.argmax(log_probs + step_gumbel, axis=-1)  # Gumbel-max: a sample of softmax(logits)
             log_prob = jnp.take_along_axis(log_probs, action[..., None], axis=-1)[..., 0]
-            next_obs, next_state, reward, terminated, truncated, info = jax.vmap(
-                self.env.step, in_axes=(0, 0, 0, None)
-            )(step_keys, env_state, action, runner.env_params)
+            next_obs, next_state, reward, terminated, truncated, info = self.env.batch_step(
+                step_key, env_state, action, runner.env_params
+            )
             extras = {}
             if self.num_agents is not None:
                 team_reward = reward.sum(axis=-1)  # an episode's return: the fleet's, summed over robots
-                extras["events"] = {
-                    metric: info[flag].sum().astype(jnp.float32) for flag, metric in AGENT_EVENTS.items() if flag in info
-                }
             else:
                 team_reward = reward
+            if self.env.event_metrics:  # the info flags the environment asks to count
+                extras["events"] = count_events(self.env, info)
             if self.centralized:
                 extras["global_state"] = global_states(env_state, runner.env_params)
                 extras["final_global_state"] = info["final_global_state"]
@@ -399,28 +294,6 @@ class PPO(Algorithm[PPORunner]):
     def sample_action(self, network_params: Any, obs: jax.Array, key: jax.Array) -> jax.Array:
         """A draw from the categorical policy (``obs`` may carry batch axes)."""
         return jax.random.categorical(key, self.forward(network_params, obs), axis=-1).astype(jnp.int32)
-
-    def flops_per_update(self) -> int:
-        cfg = self.config
-        # The one-hot first layer is a gather-sum, about the cost of a dense layer on the raw values.
-        obs, hidden, actions = agent_observation_size(self.env), tuple(cfg.hidden_sizes), self.env.num_actions
-        if self.map_layout is not None:  # the MLPs see the features, not the map; the actor's propagation
-            _, height, width = self.map_layout  # is counted with the actor, the critic shares it
-            obs = self.num_features
-            plan = propagation.propagation_forward_flops(height, width, cfg.propagation_rounds)
-        else:
-            plan = 0
-        actor = mlp_forward_flops(obs, hidden, actions) + plan
-        critic = mlp_forward_flops(obs, hidden, 1)
-        # Network rows: one per agent; the centralized critic's global part once per environment step.
-        n = cfg.steps_per_update * (self.num_agents or 1)
-        if self.centralized:
-            critic += 2 * self.global_size * hidden[0] // (self.num_agents or 1)
-        rollout = n * actor
-        values = 2 * n * critic
-        train = cfg.update_epochs * n * 3 * (actor + critic)  # forward + backward ~ 3 forwards
-        return rollout + values + train
-
 
 def gae(
     reward: jax.Array,

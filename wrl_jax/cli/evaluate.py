@@ -44,7 +44,7 @@ def evaluate_run(run_dir: str | os.PathLike) -> dict[str, Any]:
     summary = family.summarize(trainer.evaluate(runners), trainer.seeds)
     summary.update(family_evaluation.run_final_report(family, trainer, runners, updates_done=meta["updates_done"]))
     conv = training.Convergence.from_json(meta.get("convergence", {}), solved_key=family.solved_key)
-    first = [None if u is None else u * trainer.steps_per_update for u in conv.first_optimal_update(len(trainer.seeds))]
+    first = [None if u is None else u * trainer.steps_per_update for u in conv.first_solved_update(len(trainer.seeds))]
     label = (
         f"{spec.name.upper()} {meta['env']} ({meta.get('preset', '?')}, {len(trainer.seeds)} seeds, "
         f"{meta['updates_done'] * trainer.steps_per_update:,} steps)"

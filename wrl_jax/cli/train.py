@@ -82,8 +82,8 @@ def train(command: Command) -> dict[str, Any]:
     eval_summary.update(family_evaluation.run_final_report(family, trainer, result.runners, out,
                                                            updates_done=result.updates_done))
     eval_seconds = time.perf_counter() - t0
-    first = result.convergence.first_optimal_update(len(trainer.seeds))
-    stable = result.convergence.stable_optimal_update(len(trainer.seeds))
+    first = result.convergence.first_solved_update(len(trainer.seeds))
+    stable = result.convergence.stable_solved_update(len(trainer.seeds))
     steps = trainer.steps_per_update
     first_steps = [None if u is None else u * steps for u in first]
     stable_steps = [None if u is None else u * steps for u in stable]
@@ -96,7 +96,9 @@ def train(command: Command) -> dict[str, Any]:
 
     rows = metrics_io.read_jsonl(out / metrics_io.JSONL_NAME)
     if run.plot and rows:
-        metrics_io.plot_learning_curves(rows, out / metrics_io.PLOT_NAME, title=label)
+        panels = [(rate.name, rate.label) for rate in family.train_rates]
+        panels.append((family.progress_metric[0], f"greedy eval: {family.progress_metric[1]}"))
+        metrics_io.plot_learning_curves(rows, out / metrics_io.PLOT_NAME, title=label, panels=panels)
 
     env_steps_per_seed = result.updates_done * steps
     env_steps_all = env_steps_per_seed * len(trainer.seeds)

@@ -28,6 +28,8 @@ and compare and hash by those (see :meth:`Environment.static_key`).
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Mapping
+from types import MappingProxyType
 from typing import Any, Generic, TypeVar
 
 import jax
@@ -78,6 +80,11 @@ class Environment(gymnax_environment.Environment, Generic[StateT, ParamsT]):
     """Agents acting in one step. ``None``: a single-agent family (no agent axis). A multi-agent family
     (the fleet) sets it to ``K``: its observations, actions and rewards carry a leading agent axis of
     that length, while ``terminated`` and ``truncated`` stay per environment (one shared episode)."""
+
+    event_metrics: Mapping[str, str] = MappingProxyType({})
+    """Info flags the training loop counts, by the metric name it logs their sum under per update
+    (the fleet: ``{"delivered": "deliveries_sum", ...}``); a family's
+    :class:`~wrl_jax.core.evaluation.TrainRate` s can divide them."""
 
     def __init__(self, default_params: ParamsT | None = None):
         self._default_params = default_params

@@ -59,6 +59,32 @@ class SweepMetric:
 
 
 @dataclasses.dataclass(frozen=True)
+class TrainRate:
+    """A rate of the training log, derived per log group from a sum the training loop counted.
+
+    Attributes:
+        name: the metric's key in the log rows (``delivery_rate``, ``train_throughput``).
+        label: its name on a learning-curve panel.
+        sum_key: the summed metric it divides: ``terminated`` (episodes that ended by
+            termination, :class:`~wrl_jax.agents.base.EpisodeSums`) or an event sum the
+            environment declares (:attr:`~wrl_jax.core.environment.Environment.event_metrics`).
+        per: ``"episode"`` (over the group's ended episodes; shown in %) or ``"step"``
+            (over the group's environment steps per seed).
+        progress: its label on the progress bar (``None``: not shown there).
+    """
+
+    name: str
+    label: str
+    sum_key: str
+    per: str = "episode"
+    progress: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.per not in ("episode", "step"):
+            raise ValueError(f"TrainRate {self.name!r}: per must be 'episode' or 'step', got {self.per!r}")
+
+
+@dataclasses.dataclass(frozen=True)
 class SweepColumns:
     """What a sweep reports for one family: its headline metrics, in table order.
 
@@ -102,7 +128,10 @@ class FamilyEvaluation:
         format_report: ``(summary, label, convergence_steps, study) -> str``: the
             Markdown table printed after training and written to ``evaluation.md``.
         format_details: ``summary -> str``: a second, detailed table (may be empty).
-        progress_metric: ``(seed_summary key, label)`` shown on the progress bar.
+        progress_metric: ``(seed_summary key, label)`` shown on the progress bar and
+            plotted beside the training curves.
+        train_rates: the family's :class:`TrainRate` s, derived in every log row
+            (the driver itself derives only ``mean_return`` and ``mean_length``).
         final_report: optional ``FinalContext -> dict``, run once after training
             (and by ``python -m wrl_jax.evaluate``) on the host: evaluations too
             large or too different to run inside the training loop (held-out
@@ -122,6 +151,7 @@ class FamilyEvaluation:
     format_report: Callable[..., str]
     format_details: Callable[[dict[str, Any]], str]
     progress_metric: tuple[str, str] = ("eval_success_rate", "eval success")
+    train_rates: tuple[TrainRate, ...] = ()
     final_report: Callable[["FinalContext"], dict[str, Any]] | None = None
     sweep_columns: SweepColumns | None = None
 

@@ -205,7 +205,7 @@ def expand_observations(scalars: jax.Array, masks: tuple[jax.Array, ...], view_r
     per-column choice of channel. XLA's CPU loop emitter turns that into a few vector instructions
     per 8 or 16 columns with the constants as memory operands; the chain of ``where`` calls on the
     column's channel it replaced compiled to a byte-mask conversion and a blend per select, and the
-    observation ran 1.38x slower (``bench/fleet_step_profile.py --parts obs``; docs/fleet_planners.md
+    observation ran 1.38x slower (``bench/investigations/fleet_step_profile.py --parts obs``; docs/fleet_planners.md
     "Speed"). The expression is elementwise, so XLA fuses it into whatever consumes the observation.
     ``C = len(masks)``, the channel count (3, or 4 with the priority channel, 5 with headings too).
     """

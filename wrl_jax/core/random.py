@@ -105,7 +105,7 @@ def words_modulo(words: jax.Array, divisor: jax.Array) -> jax.Array:
 
     Why: the divisor of a task draw is data (a layout's item or station count), and x86 has no
     vector integer division, so XLA's CPU backend ran a scalar ``div`` per word: 6 to 8 % of a
-    K = 8 fleet step (``bench/fleet_step_profile.py --trace``). Here the quotient is estimated with
+    K = 8 fleet step (``bench/investigations/fleet_step_profile.py --trace``). Here the quotient is estimated with
     float32 reciprocal multiplies and corrected with integer arithmetic, all vector instructions.
 
     Exactness: ``f32(x) * f32(1/d)`` is three roundings from ``x / d`` (relative error just over

@@ -147,7 +147,7 @@ def train_variants(
     loop = training.LoopConfig(eval_every=eval_every, progress=False)
     batch = train_batch(algo, all_seeds, hyper=hyper, env_params=env_params, loop=loop)
     trainer, result, episodes = batch.trainer, batch.result, batch.episodes
-    first = result.convergence.first_optimal_update(len(all_seeds))
+    first = result.convergence.first_solved_update(len(all_seeds))
     steps_per_update = trainer.steps_per_update
 
     # Rows come per log group, one per runner in batch order.

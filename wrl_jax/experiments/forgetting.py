@@ -68,7 +68,7 @@ def make_segment_fn(algo, full_params: EnvParams, segment_updates: int):
                                         jnp.arange(segment_updates, dtype=jnp.int32))
         episodes = evaluation.evaluate_seeds(algo.greedy_action, jax.vmap(algo.network_params)(runners),
                                              algo.env, full_params)
-        stats = {k: metrics[k].sum(axis=0) for k in ("episodes", "delivered", "length_sum")}
+        stats = {k: metrics[k].sum(axis=0) for k in ("episodes", "terminated", "length_sum")}
         return runners, stats, episodes
 
     return jax.jit(segment)
@@ -101,7 +101,7 @@ def train(setting: Setting, seeds: list[int], quick: bool, variants=VARIANTS) ->
         runners, stats, episodes = segment(runners, params, clear, start)
         ep = np.asarray(stats["episodes"]).reshape(len(variants), n)
         with np.errstate(invalid="ignore", divide="ignore"):
-            train_delivery[k] = np.asarray(stats["delivered"]).reshape(len(variants), n) / ep
+            train_delivery[k] = np.asarray(stats["terminated"]).reshape(len(variants), n) / ep
             train_length[k] = np.asarray(stats["length_sum"]).reshape(len(variants), n) / ep
         delivered[k] = np.asarray(episodes.delivered).reshape(len(variants), n, -1)[..., :num_items]
         final_episodes = episodes

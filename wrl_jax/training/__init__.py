@@ -2,6 +2,7 @@
 
 - :mod:`~wrl_jax.training.driver`: the chunked
   :class:`Trainer` and :func:`run` (progress, metrics, checkpoints, exact resume);
+- :mod:`~wrl_jax.training.log_rows`: metric rows, progress text, convergence;
 - :mod:`~wrl_jax.training.metrics_io`: JSONL/CSV/TensorBoard metrics and plots;
 - :mod:`~wrl_jax.training.checkpoint`: atomic checkpoints;
 - :mod:`~wrl_jax.training.sharding`, :mod:`~wrl_jax.training.sweep`: devices and sweeps.
@@ -10,8 +11,6 @@ The driver's public names are re-exported here (``wrl_jax.training.Trainer``...)
 """
 
 from wrl_jax.training.driver import (
-    SUM_METRICS,
-    Convergence,
     LatestEval,
     LoopConfig,
     RunResult,
@@ -21,6 +20,7 @@ from wrl_jax.training.driver import (
     run,
     seed_keys,
 )
+from wrl_jax.training.log_rows import SUM_METRICS, Convergence
 
 __all__ = [
     "SUM_METRICS",

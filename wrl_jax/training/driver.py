@@ -19,18 +19,11 @@ Periodic greedy evaluation runs *inside* the compiled chunk, every
 ``eval_every`` updates and after the last one (a ``lax.cond`` on the update
 index, so it costs nothing on the other updates): the greedy policy of every
 seed, evaluated by the environment family's hook
-(:mod:`wrl_jax.core.evaluation`; for the warehouse, every item index). Its
-per-seed results become ``eval_*`` metrics, and the first update at which a seed
-*solves* the task (the hook's ``solved_key``: for the warehouse, every item
-delivered at the BFS optimum) gives that seed's *convergence step*.
+(:mod:`wrl_jax.core.evaluation`). Its per-seed results become ``eval_*`` metrics,
+and the first update at which a seed *solves* the task (the hook's ``solved_key``)
+gives that seed's *convergence step*.
 
-Metric aggregation over a log group of ``log_every`` updates: episode sums
-(``episodes``, ``delivered``, ``return_sum``, ``length_sum`` and any key ending in
-``_sum``) are added, ``eval_*`` keys take the group's last evaluation, and every
-other metric is averaged. Derived per row: ``mean_return``, ``delivery_rate``
-and ``mean_length`` of the training episodes that ended in the group, and for
-a multi-agent environment ``train_throughput`` (its agents' deliveries per
-environment step, from ``deliveries_sum``).
+Metric rows, the progress text and convergence are :mod:`~wrl_jax.training.log_rows`.
 
 Why one module of this length: :class:`Trainer` and :func:`run` are one loop
 that must stay bit-identical to ``make_train`` (tested), and read best side by side.
@@ -52,12 +45,11 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from wrl_jax.training import checkpoint, metrics_io
+from wrl_jax.agents.base import Algorithm
 from wrl_jax.core import evaluation as family_evaluation
-from wrl_jax.agents.base import Algorithm, EpisodeSums
-
-SUM_METRICS = frozenset(f.name for f in dataclasses.fields(EpisodeSums))
-"""Metrics that are sums over episodes; a log group adds them (so do keys ending in ``_sum``)."""
+from wrl_jax.training import checkpoint, metrics_io
+from wrl_jax.training.log_rows import Convergence, metric_rows
+from wrl_jax.training.log_rows import describe as describe_rows
 
 
 def seed_keys(seeds: Sequence[int]) -> jax.Array:
@@ -265,91 +257,13 @@ class Trainer:
     # --------------------------------------------------------------- metrics
     def metric_rows(self, metrics: dict[str, np.ndarray], start: int) -> list[dict[str, Any]]:
         """Per-update metrics of a chunk (from :meth:`run_chunk`) as one row per (log group, seed)."""
-        ran = next(iter(metrics.values())).shape[0]
-        rows = []
-        log_every = self.loop.log_every
-        for group_start in range(0, ran, log_every):
-            group = {k: v[group_start : group_start + log_every] for k, v in metrics.items()}
-            update = start + min(group_start + log_every, ran)
-            for s, seed in enumerate(self.seeds):
-                row: dict[str, Any] = {"update": update, "env_steps": update * self.steps_per_update, "seed": seed}
-                for key, values in group.items():
-                    row[key] = _aggregate(key, values[:, s].astype(np.float64))
-                episodes = row.get("episodes", math.nan)
-                row["mean_return"] = row.get("return_sum", math.nan) / episodes if episodes else math.nan
-                row["delivery_rate"] = row.get("delivered", math.nan) / episodes if episodes else math.nan
-                row["mean_length"] = row.get("length_sum", math.nan) / episodes if episodes else math.nan
-                if "deliveries_sum" in row:  # multi-agent: deliveries of all agents per environment step
-                    group_steps = len(next(iter(group.values()))) * self.steps_per_update
-                    row["train_throughput"] = row["deliveries_sum"] / group_steps
-                rows.append(row)
-        return rows
+        return metric_rows(metrics, start, self.seeds, self.loop.log_every, self.steps_per_update,
+                           self.evaluation.train_rates)
 
 
 def _signature(tree: Any) -> tuple:
     leaves, treedef = jax.tree_util.tree_flatten(tree)
     return (treedef, tuple((x.shape, str(x.dtype), getattr(x, "sharding", None)) for x in leaves))
-
-
-def _aggregate(key: str, values: np.ndarray) -> float:
-    if key in SUM_METRICS or key.endswith("_sum"):
-        return float(values.sum())
-    if key.startswith("eval_"):
-        present = values[~np.isnan(values)]
-        return float(present[-1]) if present.size else math.nan
-    return float(values.mean())
-
-
-# ------------------------------------------------------------- convergence
-@dataclasses.dataclass
-class Convergence:
-    """Per-seed history of the periodic evaluations' "solved" flag (the family's ``solved_key``).
-
-    Attributes:
-        updates: the update counts (1-based) at which an evaluation ran.
-        all_optimal: per evaluation, one flag per seed (the name of the
-            warehouse's flag, kept so checkpoints written before stay readable).
-        solved_key: the metric holding the flag.
-    """
-
-    updates: list[int] = dataclasses.field(default_factory=list)
-    all_optimal: list[list[bool]] = dataclasses.field(default_factory=list)
-    solved_key: str = "eval_all_optimal"
-
-    def record(self, metrics: dict[str, np.ndarray], start: int) -> None:
-        flags = metrics.get(self.solved_key)
-        if flags is None:
-            return
-        for offset, row in enumerate(flags):
-            if not np.isnan(row).any():
-                self.updates.append(start + offset + 1)
-                self.all_optimal.append([bool(x == 1.0) for x in row])
-
-    def first_optimal_update(self, num_seeds: int) -> list[int | None]:
-        """Per seed, the first evaluated update where every item was delivered at the optimum."""
-        out: list[int | None] = [None] * num_seeds
-        for update, flags in zip(self.updates, self.all_optimal):
-            for s, ok in enumerate(flags):
-                if ok and out[s] is None:
-                    out[s] = update
-        return out
-
-    def stable_optimal_update(self, num_seeds: int) -> list[int | None]:
-        """Per seed, the first evaluated update from which every later evaluation was optimal too."""
-        out: list[int | None] = [None] * num_seeds
-        for s in range(num_seeds):
-            for update, flags in zip(reversed(self.updates), reversed(self.all_optimal)):
-                if not flags[s]:
-                    break
-                out[s] = update
-        return out
-
-    def to_json(self) -> dict[str, Any]:
-        return {"updates": self.updates, "all_optimal": self.all_optimal}
-
-    @classmethod
-    def from_json(cls, data: dict[str, Any], solved_key: str = "eval_all_optimal") -> "Convergence":
-        return cls(list(data.get("updates", [])), [list(x) for x in data.get("all_optimal", [])], solved_key)
 
 
 # ------------------------------------------------------------------ the run
@@ -488,8 +402,7 @@ def run(
             if bar is not None:
                 bar.update(ran * trainer.steps_per_update)
                 steps_per_second = ran * trainer.steps_per_update * len(trainer.seeds) / max(elapsed, 1e-9)
-                progress_metric = trainer.evaluation.progress_metric
-                postfix = describe(rows) if describe is not None else _describe(rows, progress_metric)
+                postfix = describe(rows) if describe is not None else describe_rows(rows, trainer.evaluation)
                 bar.set_postfix_str(f"{steps_per_second / 1e3:,.0f}k steps/s (all seeds) | {postfix}", refresh=True)
     except KeyboardInterrupt:
         # ``runners`` and ``updates_done`` still describe the last completed chunk.
@@ -521,24 +434,6 @@ def final_evaluation(trainer: Trainer, result: RunResult) -> Any:
     if latest is not None and int(latest.update) == result.updates_done and result.updates_done > 0:
         return latest.episodes
     return trainer.evaluate(result.runners)
-
-
-def _describe(rows: list[dict[str, Any]], progress_metric: tuple[str, str]) -> str:
-    """Progress postfix: return (and deliveries) of the chunk's training episodes, the family's eval metric."""
-    episodes = sum(row.get("episodes", 0.0) for row in rows)
-    text = "no episode ended"
-    if episodes:
-        ret = sum(row.get("return_sum", 0.0) for row in rows) / episodes
-        text = f"return {ret:+.1f}"
-        # A fleet's shifts never terminate: its deliveries are counted per robot (deliveries_sum), not per episode.
-        if any("delivered" in row for row in rows) and not any("deliveries_sum" in row for row in rows):
-            delivered = sum(row.get("delivered", 0.0) for row in rows) / episodes
-            text += f" | delivered {100 * delivered:.0f}%"
-    key, label = progress_metric
-    evals = [row[key] for row in rows if not math.isnan(row.get(key, math.nan))]
-    if evals:
-        text += f" | {label} {100 * float(np.mean(evals[-len(set(r['seed'] for r in rows)):])):.0f}%"
-    return text
 
 
 def install_sigterm_handler() -> None:

@@ -2,7 +2,7 @@
 
 One row per (logged update, seed): ``update`` (updates done, 1-based),
 ``env_steps`` (per seed), ``seed``, then the algorithm's metrics and the
-driver's derived ones (``mean_return``, ``delivery_rate``, ``mean_length``,
+driver's derived ones (``mean_return``, ``mean_length``, the family's rates such as ``delivery_rate``,
 ``eval_*``). Missing values (no episode ended, no evaluation at this update)
 are NaN in memory, ``null`` in JSONL and empty in CSV.
 
@@ -197,13 +197,13 @@ class _TensorBoard:
 
 
 def plot_learning_curves(
-    rows: Sequence[dict[str, Any]], path: str | os.PathLike, title: str = "", optimal_return: float | None = None
+    rows: Sequence[dict[str, Any]], path: str | os.PathLike, title: str = "", optimal_return: float | None = None,
+    panels: Sequence[tuple[str, str]] = (),
 ) -> Path:
     """Learning curves against env steps: every seed thin, their mean bold.
 
-    Panels: mean episode return, delivery rate of the training episodes, and,
-    when the run evaluated during training, the greedy policy's rate of items
-    delivered at the BFS optimum.
+    Panels: mean episode return, then ``panels`` (``(row key, label)``: the family's
+    training rates and periodic evaluation metric) that the rows hold.
     """
     import matplotlib
 
@@ -212,9 +212,9 @@ def plot_learning_curves(
 
     path = Path(path)
     seeds = sorted({row["seed"] for row in rows})
-    panels = [("mean_return", "episode return"), ("delivery_rate", "delivery rate (training episodes)")]
-    if any(not math.isnan(row.get("eval_optimal_rate", math.nan)) for row in rows):
-        panels.append(("eval_optimal_rate", "greedy eval: items at BFS optimum"))
+    panels = [("mean_return", "episode return"),
+              *((key, label) for key, label in panels
+                if any(not math.isnan(row.get(key, math.nan)) for row in rows))]
     fig, axes = plt.subplots(1, len(panels), figsize=(5.0 * len(panels), 3.8), squeeze=False)
     for ax, (key, label) in zip(axes[0], panels):
         curves = []

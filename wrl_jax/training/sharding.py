@@ -45,8 +45,8 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from wrl_jax.training import driver as training
 from wrl_jax.agents.base import Algorithm
+from wrl_jax.training import driver as training
 
 SEED_AXIS = "seeds"
 """Mesh axis over which seeds (and sweep points) are split."""

@@ -62,11 +62,16 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import math
-from collections.abc import Sequence
 from typing import Any
 
-from wrl_jax.stats import mean_half_width
+from wrl_jax.training.sweep_columns import (
+    default_columns,
+    evaluation_values,
+    point_row,
+    solved_flags,
+    summary_rows,
+    training_values,
+)
 
 
 class StaticFieldError(ValueError):
@@ -298,48 +303,6 @@ class Sweep:
         }
 
 
-# ------------------------------------------------------------------ columns
-def default_columns(summary_rows: list[dict[str, Any]]) -> Any:
-    """The columns of a family that declares none: every number of its per-seed rows, then "solved".
-
-    A new family's sweep works before anyone chooses its headline metrics.
-    """
-    from wrl_jax.core.evaluation import SweepColumns, SweepMetric
-
-    first = summary_rows[0] if summary_rows else {}
-    keys = [k for k, v in first.items()
-            if k not in ("seed", "solved") and isinstance(v, (int, float)) and not isinstance(v, bool)]
-    metrics = [SweepMetric(k, k.replace("_", " "), plot=k.replace("_", " ") if i < 3 else None)
-               for i, k in enumerate(keys)]
-    return SweepColumns(
-        metrics=(*metrics, SweepMetric("solved", "seeds solved", "solved")),
-        train=(SweepMetric("delivery_rate", "train delivery (last log)", "percent"),
-               SweepMetric("mean_return", "train return (last log)", table=False, aggregate=False)),
-    )
-
-
-def train_column(metric: Any) -> str:
-    """The per-seed column of a training metric: ``train_<key>`` (a key already ``train_...`` kept)."""
-    return metric.key if metric.key.startswith("train_") else f"train_{metric.key}"
-
-
-def _summary_rows(summary: dict[str, Any], path: Sequence[str]) -> list[dict[str, Any]]:
-    """The per-seed rows of a family summary, at ``path`` (``SweepColumns.rows``)."""
-    rows: Any = summary
-    for key in path:
-        rows = rows[key]
-    return rows
-
-
-def _solved_flags(evaluation: Any, episodes: Any) -> list[bool]:
-    """Per seed, the family's solved criterion on the final evaluation (its ``seed_summary[solved_key]``)."""
-    import jax
-    import numpy as np
-
-    flags = jax.vmap(evaluation.seed_summary)(episodes)[evaluation.solved_key]
-    return [bool(x == 1.0) for x in np.asarray(flags)]
-
-
 # ------------------------------------------------------------------ running
 @dataclasses.dataclass
 class SweepResult:
@@ -387,8 +350,8 @@ def run_sweep(
 
     n_seeds = len(sweep.seeds)
     steps = trainer.steps_per_update
-    first = result.convergence.first_optimal_update(len(seeds))
-    stable = result.convergence.stable_optimal_update(len(seeds))
+    first = result.convergence.first_solved_update(len(seeds))
+    stable = result.convergence.stable_solved_update(len(seeds))
     last_train: dict[int, dict[str, Any]] = {}
     metric_rows = []
     for i, row in enumerate(result.rows):
@@ -401,11 +364,11 @@ def run_sweep(
     per_seed, per_point = [], []
     for g, point in enumerate(sweep.points):
         part = jax.tree.map(lambda x: x[g * n_seeds : (g + 1) * n_seeds], episodes)
-        seed_rows = _summary_rows(evaluation.summarize(part, sweep.seeds),
+        seed_rows = summary_rows(evaluation.summarize(part, sweep.seeds),
                                   ("per_seed",) if columns is None else columns.rows)
         if columns is None:
             columns = default_columns(seed_rows)
-        solved = _solved_flags(evaluation, part)
+        solved = solved_flags(evaluation, part)
         rows = []
         for s, seed_row in enumerate(seed_rows):
             index = g * n_seeds + s
@@ -416,7 +379,7 @@ def run_sweep(
             row.update(training_values(columns, last_train.get(index, {})))
             rows.append(row)
         per_seed.extend(rows)
-        per_point.append(_aggregate(columns, {"point": g, **point, "num_seeds": n_seeds}, rows))
+        per_point.append(point_row(columns, {"point": g, **point, "num_seeds": n_seeds}, rows))
     timings = {
         "init_seconds": batch.init_seconds,
         "compile_seconds": result.compile_seconds,
@@ -429,55 +392,13 @@ def run_sweep(
                        evaluation.solved_definition)
 
 
-def evaluation_values(columns: Any, seed_row: dict[str, Any], solved: bool) -> dict[str, Any]:
-    """One seed's evaluation metrics (``None`` where missing or NaN), then its solved flags."""
-    out = {m.key: _finite(seed_row.get(m.key)) for m in columns.metrics if m.kind != "solved"}
-    out.update({m.key: solved for m in columns.metrics if m.kind == "solved"})
-    return out
-
-
-def training_values(columns: Any, train_row: dict[str, Any]) -> dict[str, Any]:
-    """One seed's last training log row, as the family's training columns.
-
-    A metric the algorithm does not log for this environment (a multi-agent
-    fleet has no per-episode delivery rate) is ``None``, never an error.
-    """
-    return {train_column(m): _finite(train_row.get(m.key)) for m in columns.train}
-
-
-def _aggregate(columns: Any, head: dict[str, Any], rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """A point's row: mean and 95 % half-width over seeds of each metric, convergence, solved counts."""
-    aggregate = dict(head)
-    keys = [m.key for m in columns.metrics if m.kind != "solved" and m.aggregate]
-    keys += [train_column(m) for m in columns.train if m.aggregate]
-    for key in keys + ["first_optimal_step"]:
-        mean, half, _ = mean_half_width([r[key] for r in rows])
-        aggregate[key] = mean
-        aggregate[f"{key}_ci95"] = half
-    aggregate["converged_seeds"] = mean_half_width([r["first_optimal_step"] for r in rows])[2]
-    for m in columns.metrics:
-        if m.kind == "solved":
-            aggregate[f"{m.key}_seeds"] = sum(bool(r[m.key]) for r in rows)
-    return aggregate
-
-
-def _finite(value: Any) -> float | None:
-    """A metric as a float, or ``None`` when missing or NaN (no episode to average over)."""
-    if value is None:
-        return None
-    value = float(value)
-    return None if math.isnan(value) else value
-
-
 __all__ = [
     "StaticFieldError",
     "Sweep",
     "SweepResult",
-    "default_columns",
     "hyper_for",
     "is_traced_env_field",
     "run_sweep",
     "traced_env_fields",
     "traced_fields",
-    "training_values",
 ]

@@ -13,6 +13,8 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from wrl_jax.training.sweep_columns import train_column
+
 if TYPE_CHECKING:
     from wrl_jax.training.sweep import SweepResult
 
@@ -48,7 +50,6 @@ def results_markdown(result: SweepResult) -> str:
     The columns are the family's (:class:`~wrl_jax.core.evaluation.SweepColumns`):
     its evaluation metrics, its training metrics, then the generic convergence column.
     """
-    from wrl_jax.training.sweep import train_column
 
     sweep, columns = result.sweep, result.columns
     n = len(sweep.seeds)

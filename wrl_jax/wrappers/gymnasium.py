@@ -1,4 +1,5 @@
-"""The JAX warehouse behind the Gymnasium API: a single ``gymnasium.Env`` and a ``VectorEnv``.
+"""The JAX warehouse behind the Gymnasium API: a single ``gymnasium.Env`` (the ``VectorEnv`` is
+:mod:`wrl_jax.wrappers.gymnasium_vector`, on the same packing and helpers).
 
 For users who bring a Gymnasium-based trainer (Stable-Baselines3, CleanRL, ...).
 The transition is the JAX one (:class:`wrl_jax.Warehouse`), compiled once per
@@ -11,17 +12,13 @@ size never recompiles.
 - :class:`WarehouseGymEnv`: one environment; ``step`` is the non-resetting
   ``env.transition`` (Gymnasium single environments do not auto-reset) and
   returns NumPy values: float32 observation, Python float reward, Python bools.
-- :class:`WarehouseVectorEnv`: ``num_envs`` environments advanced by one
-  jitted, vmapped call of the auto-resetting ``env.step``, with Gymnasium 1.x's
-  ``SAME_STEP`` autoreset convention (``final_obs`` / ``final_info``).
+- :class:`~wrl_jax.wrappers.gymnasium_vector.WarehouseVectorEnv`: ``num_envs``
+  environments advanced by one jitted, vmapped call of the auto-resetting ``env.step``,
+  with Gymnasium 1.x's ``SAME_STEP`` autoreset convention (``final_obs`` / ``final_info``).
 
 Importing :mod:`wrl_jax` registers ``wrl_jax/Warehouse-8x8-v0`` and
 ``wrl_jax/Warehouse-12x12-v0`` with both entry points, so ``gymnasium.make`` and
 ``gymnasium.make_vec(..., vectorization_mode="vector_entry_point")`` work.
-
-Why one module of this length: the single and the vector adapter share their
-jitted functions, packing and registration; split, each half would import
-the other's internals.
 """
 
 from __future__ import annotations
@@ -36,13 +33,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from gymnasium import spaces
-from gymnasium.vector import AutoresetMode
-from gymnasium.vector.utils import batch_space
 
-from wrl_jax.envs.warehouse.env import ACTION_NAMES, NUM_ACTIONS, Warehouse, draw_item
-from wrl_jax.envs.warehouse.layout import Layout
 from wrl_jax.core import registry
 from wrl_jax.core.registry import make
+from wrl_jax.envs.warehouse.env import ACTION_NAMES, NUM_ACTIONS, Warehouse, draw_item
+from wrl_jax.envs.warehouse.layout import Layout
 from wrl_jax.envs.warehouse.registration import make_from_layout
 from wrl_jax.envs.warehouse.render import DEFAULT_CELL_SIZE, check_cell_size, render_ascii, render_frame
 from wrl_jax.envs.warehouse.types import EnvParams, EnvState
@@ -59,7 +54,7 @@ def _pygame_available() -> bool:
 # ``human`` is only offered when the optional pygame extra is installed, so that
 # ``gymnasium.utils.env_checker.check_env`` (which tries every declared mode) passes without it.
 _RENDER_MODES = ["rgb_array", "ansi"] + (["human"] if _pygame_available() else [])
-_RENDER_FPS = 8
+RENDER_FPS = 8
 
 
 # ----------------------------------------------------------- jitted transitions
@@ -69,22 +64,22 @@ _RENDER_FPS = 8
 # host needs, because every separate device-to-host transfer costs more than the
 # transition itself. All packed values are exact in float32: the float32
 # observation and reward, bools as 0/1, small item indices.
-def _pack(*columns: jax.Array) -> jax.Array:
+def pack(*columns: jax.Array) -> jax.Array:
     """Concatenate scalars and vectors (with any leading batch axes) along the last axis as float32."""
     return jnp.concatenate([jnp.atleast_1d(column).astype(jnp.float32) for column in columns], axis=-1)
 
 
-def _reset_packed(env: Warehouse, key: jax.Array, item_index: jax.Array, params: EnvParams):
+def reset_packed(env: Warehouse, key: jax.Array, item_index: jax.Array, params: EnvParams):
     """Reset to ``item_index``, or to an item drawn from ``key`` when it is negative.
 
     Packed: ``[obs (d), item_index]``.
     """
     drawn = draw_item(key, params)
     obs, state = env.reset_to_item(jnp.where(item_index < 0, drawn, item_index), params)
-    return state, _pack(obs, state.item_index[..., None])
+    return state, pack(obs, state.item_index[..., None])
 
 
-_reset_single = functools.partial(jax.jit, static_argnums=0)(_reset_packed)
+_reset_single = functools.partial(jax.jit, static_argnums=0)(reset_packed)
 
 
 @functools.partial(jax.jit, static_argnums=0)
@@ -92,31 +87,7 @@ def _step_single(env: Warehouse, state: EnvState, action: jax.Array, params: Env
     """One non-resetting transition. Packed: ``[obs (d), reward, terminated, truncated, *INFO_FLAGS]``."""
     obs, state, reward, terminated, truncated, info = env.transition(None, state, action, params)
     flags = [info[flag] for flag in INFO_FLAGS]
-    return state, _pack(obs, jnp.stack([reward, terminated, truncated, *flags]))
-
-
-@functools.partial(jax.jit, static_argnums=(0, 1))
-def _reset_vector(env: Warehouse, num_envs: int, key: jax.Array, item_index: jax.Array, params: EnvParams):
-    """Reset ``num_envs`` environments; a negative ``item_index[i]`` draws environment i's item."""
-    keys = jax.random.split(key, num_envs)
-    return jax.vmap(_reset_packed, in_axes=(None, 0, 0, None))(env, keys, item_index, params)
-
-
-@functools.partial(jax.jit, static_argnums=0)
-def _step_vector(env: Warehouse, key: jax.Array, states: EnvState, actions: jax.Array, params: EnvParams):
-    """Advance every environment by one auto-resetting step.
-
-    Returns ``(key, states, packed)``, packed ``(num_envs, 2 d + 8)``:
-    ``[obs (d), final_obs (d), reward, terminated, truncated, *INFO_FLAGS, item_index]``.
-    """
-    key, step_key = jax.random.split(key)
-    keys = jax.random.split(step_key, actions.shape[0])
-    obs, states, reward, terminated, truncated, info = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
-        keys, states, actions, params
-    )
-    flags = [info[flag] for flag in INFO_FLAGS]
-    scalars = jnp.stack([reward, terminated, truncated, *flags, states.item_index], axis=-1)
-    return key, states, _pack(obs, info["final_obs"], scalars)
+    return state, pack(obs, jnp.stack([reward, terminated, truncated, *flags]))
 
 
 @functools.partial(jax.jit, static_argnums=1)
@@ -124,13 +95,8 @@ def _render_one(state: EnvState, cell_size: int, params: EnvParams) -> jax.Array
     return render_frame(state, params, cell_size)
 
 
-@functools.partial(jax.jit, static_argnums=1)
-def _render_batch(states: EnvState, cell_size: int, params: EnvParams) -> jax.Array:
-    return jax.vmap(render_frame, in_axes=(0, None, None))(states, params, cell_size)
-
-
 # --------------------------------------------------------------------- helpers
-def _build(name: str | None, layout: Layout | str | None, overrides: dict[str, Any]) -> tuple[Warehouse, EnvParams]:
+def build_env(name: str | None, layout: Layout | str | None, overrides: dict[str, Any]) -> tuple[Warehouse, EnvParams]:
     """``wrl_jax.make`` for a registered name, ``make_from_layout`` for a layout."""
     if layout is not None:
         if name is not None:
@@ -152,14 +118,14 @@ def _build(name: str | None, layout: Layout | str | None, overrides: dict[str, A
     return env.without_default_params(), params
 
 
-def _observation_space(env: Warehouse) -> spaces.Box:
+def observation_space_of(env: Warehouse) -> spaces.Box:
     # The lowest value is the "picked up" item coordinate -1/(N-1), taken from
     # the environment's own exact table so the bound equals it to the bit.
     low = float(env._coordinate_table[0])
     return spaces.Box(low=low, high=1.0, shape=(env.obs_size,), dtype=np.float32)
 
 
-def _seed_from(rng: np.random.Generator) -> int:
+def seed_from(rng: np.random.Generator) -> int:
     """A JAX PRNG seed drawn from a Gymnasium generator (so it derives from the reset seed)."""
     return int(rng.integers(0, 2**32, dtype=np.uint64))
 
@@ -180,7 +146,7 @@ def _check_single_action(action: Any) -> int:
     return value
 
 
-def _check_item_option(options: dict[str, Any] | None, num_items: int, shape: tuple[int, ...]) -> np.ndarray:
+def check_item_option(options: dict[str, Any] | None, num_items: int, shape: tuple[int, ...]) -> np.ndarray:
     """The ``options["item_index"]`` of a reset as an int32 array of ``shape`` (-1: draw it)."""
     options = {} if options is None else options
     if not isinstance(options, dict):
@@ -227,7 +193,7 @@ class WarehouseGymEnv(gym.Env):
     ``picked_up``, ``delivered``; ``reset``'s ``info`` holds ``item_index``.
     """
 
-    metadata = {"render_modes": _RENDER_MODES, "render_fps": _RENDER_FPS}
+    metadata = {"render_modes": _RENDER_MODES, "render_fps": RENDER_FPS}
 
     def __init__(
         self,
@@ -238,7 +204,7 @@ class WarehouseGymEnv(gym.Env):
         cell_size: int = DEFAULT_CELL_SIZE,
         **overrides: Any,
     ):
-        self.env, self.params = _build(None if layout is not None else name, layout, overrides)
+        self.env, self.params = build_env(None if layout is not None else name, layout, overrides)
         self.name = name if layout is None else None
         if render_mode is not None and render_mode not in ("rgb_array", "ansi", "human"):
             raise ValueError(f"render_mode must be None, 'rgb_array', 'ansi' or 'human', got {render_mode!r}")
@@ -249,7 +215,7 @@ class WarehouseGymEnv(gym.Env):
             )
         self.render_mode = render_mode
         self.cell_size = check_cell_size(cell_size)
-        self.observation_space = _observation_space(self.env)
+        self.observation_space = observation_space_of(self.env)
         self.action_space = spaces.Discrete(NUM_ACTIONS)
         self.num_items = int(self.params.num_items)
         self.max_steps = int(self.params.max_steps)
@@ -266,9 +232,9 @@ class WarehouseGymEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
-        item_index = _check_item_option(options, self.num_items, ())
+        item_index = check_item_option(options, self.num_items, ())
         # Drawn on every reset, pinned or not, so the n-th reset after a seed always sees the same key.
-        key = jax.random.key(_seed_from(self.np_random))
+        key = jax.random.key(seed_from(self.np_random))
         self._state, packed = _reset_single(self.env, key, item_index, self.params)
         packed = np.asarray(packed)
         if self.render_mode == "human":
@@ -323,140 +289,6 @@ class WarehouseGymEnv(gym.Env):
 
     def __repr__(self) -> str:
         return f"WarehouseGymEnv({self.name or 'custom layout'}, size={self.env.size}, obs={self.env.obs_size})"
-
-
-# ------------------------------------------------------------------ vector env
-class WarehouseVectorEnv(gym.vector.VectorEnv):
-    """``num_envs`` warehouse environments stepped by one jitted, vmapped JAX call.
-
-    Autoreset follows Gymnasium 1.x's ``AutoresetMode.SAME_STEP`` (the JAX
-    ``env.step`` resets in the same call): on a step where environment ``i``
-    terminates or truncates, ``obs[i]`` already begins its next episode, and
-
-    - ``info["final_obs"]`` is an object array with the observation the
-      transition reached at ``i`` (None elsewhere), masked by ``info["_final_obs"]``;
-    - ``info["final_info"]`` holds that transition's flags (each key with its
-      ``_key`` mask), masked by ``info["_final_info"]``;
-    - the top-level ``info`` of ``i`` is the reset's info (``item_index``),
-      exactly as ``gymnasium.vector.SyncVectorEnv`` in ``SAME_STEP`` mode builds it.
-
-    Every key comes with its ``_key`` bool mask, as in Gymnasium's vector infos.
-    Arguments are those of :class:`WarehouseGymEnv` plus ``num_envs``.
-    ``reset(seed=s)`` derives all item draws (including every auto-reset) from
-    ``s``; ``options={"item_index": i}`` pins one item for all (a scalar) or one
-    per environment (an array of ``num_envs``).
-    """
-
-    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": ["rgb_array"], "render_fps": _RENDER_FPS}
-
-    def __init__(
-        self,
-        num_envs: int = 1,
-        name: str | None = "Warehouse-8x8-v0",
-        *,
-        layout: Layout | str | None = None,
-        render_mode: str | None = None,
-        cell_size: int = DEFAULT_CELL_SIZE,
-        **overrides: Any,
-    ):
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
-        self.env, self.params = _build(None if layout is not None else name, layout, overrides)
-        self.name = name if layout is None else None
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array' for the vector env, got {render_mode!r}")
-        self.render_mode = render_mode
-        self.cell_size = check_cell_size(cell_size)
-        self.num_envs = int(num_envs)
-        self.num_items = int(self.params.num_items)
-        self.max_steps = int(self.params.max_steps)
-        self.single_observation_space = _observation_space(self.env)
-        self.single_action_space = spaces.Discrete(NUM_ACTIONS)
-        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
-        self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self._states: EnvState | None = None
-        self._key: jax.Array | None = None
-
-    @property
-    def states(self) -> EnvState:
-        """The batched JAX state (leading axis ``num_envs``)."""
-        if self._states is None:
-            raise gym.error.ResetNeeded("call reset() before using the vector environment")
-        return self._states
-
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        super().reset(seed=seed)
-        item_index = _check_item_option(options, self.num_items, (self.num_envs,))
-        reset_key, self._key = jax.random.split(jax.random.key(_seed_from(self.np_random)))
-        self._states, packed = _reset_vector(self.env, self.num_envs, reset_key, item_index, self.params)
-        packed = np.asarray(packed)
-        d = self.env.obs_size
-        info = {
-            "item_index": packed[:, d].astype(np.int64),
-            "_item_index": np.ones(self.num_envs, dtype=bool),
-        }
-        return packed[:, :d].copy(), info
-
-    def step(self, actions):
-        actions = self._check_actions(actions)
-        if self._key is None:
-            raise gym.error.ResetNeeded("call reset() before step()")
-        self._key, self._states, packed = _step_vector(self.env, self._key, self.states, actions, self.params)
-        packed = np.asarray(packed)
-        d = self.env.obs_size
-        obs, final_obs_rows, scalars = packed[:, :d].copy(), packed[:, d : 2 * d], packed[:, 2 * d :]
-        reward = scalars[:, 0].astype(np.float64)
-        terminated = scalars[:, 1] != 0
-        truncated = scalars[:, 2] != 0
-        flags = {flag: scalars[:, 3 + k] != 0 for k, flag in enumerate(INFO_FLAGS)}
-        items = scalars[:, 3 + len(INFO_FLAGS)].astype(np.int64)
-        done = terminated | truncated
-        alive = ~done
-
-        # The layout of SyncVectorEnv's SAME_STEP infos (gymnasium/vector/sync_vector_env.py):
-        # an environment that ended reports its final transition under final_obs/final_info and
-        # its reset's info at the top level; the others report their transition's info.
-        infos: dict[str, Any] = {}
-        if done.any():
-            final_obs = np.full(self.num_envs, None, dtype=object)
-            for i in np.flatnonzero(done):
-                final_obs[i] = final_obs_rows[i].copy()
-            final_info: dict[str, Any] = {}
-            for flag in INFO_FLAGS:
-                final_info[flag] = flags[flag] & done
-                final_info[f"_{flag}"] = done.copy()
-            infos.update(final_obs=final_obs, _final_obs=done.copy(), final_info=final_info, _final_info=done.copy())
-            infos["item_index"] = np.where(done, items, 0)
-            infos["_item_index"] = done.copy()
-        if alive.any():
-            for flag in INFO_FLAGS:
-                infos[flag] = flags[flag] & alive
-                infos[f"_{flag}"] = alive.copy()
-        return obs, reward, terminated, truncated, infos
-
-    def _check_actions(self, actions) -> np.ndarray:
-        array = np.asarray(actions)
-        if array.shape != (self.num_envs,):
-            raise ValueError(f"actions must have shape ({self.num_envs},), one per environment, got {array.shape}")
-        if array.dtype.kind not in "iu":
-            raise ValueError(f"actions must be integers in 0..{NUM_ACTIONS - 1}, got dtype {array.dtype}")
-        bad = np.flatnonzero((array < 0) | (array >= NUM_ACTIONS))
-        if bad.size:
-            raise ValueError(
-                f"action {int(array[bad[0]])} of environment {int(bad[0])} is out of range: "
-                f"expected 0 up, 1 down, 2 left or 3 right"
-            )
-        return array.astype(np.int32)
-
-    def render(self):
-        if self.render_mode is None:
-            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array'")
-            return None
-        frames = np.asarray(_render_batch(self.states, self.cell_size, self.params))
-        return tuple(frames[i] for i in range(self.num_envs))
-
-    def __repr__(self) -> str:
-        return f"WarehouseVectorEnv({self.name or 'custom layout'}, num_envs={self.num_envs})"
 
 
 GYM_IDS = register_gymnasium_envs()

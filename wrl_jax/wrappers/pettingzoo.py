@@ -24,7 +24,8 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from wrl_jax.core import registry
-from wrl_jax.envs.fleet.env import FLAGS, Fleet
+from wrl_jax.envs.fleet.dynamics import FLAGS
+from wrl_jax.envs.fleet.env import Fleet
 from wrl_jax.envs.fleet.render import render_ascii, render_frame
 
 
@@ -96,7 +97,7 @@ class FleetParallelEnv(ParallelEnv):
 
     @property
     def state_space(self) -> gymnasium.spaces.Box:
-        """The documented global state (:func:`wrl_jax.envs.fleet.env.global_state`)."""
+        """The documented global state (:func:`wrl_jax.envs.fleet.observation.global_state`)."""
         return self._state_space
 
     # ------------------------------------------------------------ API

@@ -34,7 +34,7 @@ def register_gymnasium_envs() -> list[str]:
             gym.register(
                 id=env_id,
                 entry_point=f"{_ADAPTERS}:WarehouseGymEnv",
-                vector_entry_point=f"{_ADAPTERS}:WarehouseVectorEnv",
+                vector_entry_point=f"{_ADAPTERS}_vector:WarehouseVectorEnv",
                 kwargs={"name": name},
                 max_episode_steps=None,
                 nondeterministic=False,

@@ -11,21 +11,21 @@ import numpy as np
 import pytest
 
 import wrl_jax.envs  # noqa: F401  (registers the built-in names)
+from wrl_jax.core import random as core_random
 from wrl_jax.core import registry
 from wrl_jax.core.grid import MOVES_WITH_WAIT, UNREACHABLE
 from wrl_jax.core.observation import observation_size
 from wrl_jax.envs.fleet import conflicts as fleet_conflicts
-from wrl_jax.envs.fleet import env as fleet_env
-from wrl_jax.envs.fleet import maps
-from wrl_jax.envs.fleet.env import FleetTasks, draw_tasks, targets
+from wrl_jax.envs.fleet import dynamics, maps
+from wrl_jax.envs.fleet.dynamics import draw_tasks, targets
 from wrl_jax.envs.fleet.layout import parse_fleet
 from wrl_jax.envs.fleet.reference import REWARD_NAMES, FleetReference, RefState
 from wrl_jax.envs.fleet.registration import make_fleet
-from wrl_jax.envs.fleet.types import FleetState
+from wrl_jax.envs.fleet.types import FleetState, FleetTasks
 
 # Jitted once per shape: eager dispatch would compile every primitive separately.
-fleet_transition = jax.jit(fleet_env.fleet_transition)
-resolve_conflicts = jax.jit(fleet_env.resolve_conflicts)
+fleet_transition = jax.jit(dynamics.fleet_transition)
+resolve_conflicts = jax.jit(fleet_conflicts.resolve_conflicts)
 
 
 # ----------------------------------------------------------------- layouts
@@ -524,8 +524,8 @@ def test_fast_draws_are_jax_random_bits():
 
     def both(key):
         split = jax.random.split(key)
-        fast = (fleet_env.split_key(key, 0), fleet_env.split_key(key, 1))
-        words = (jax.random.bits(key, (16,), jnp.uint32), fleet_env.random_words(key, 16))
+        fast = (core_random.split_key(key, 0), core_random.split_key(key, 1))
+        words = (jax.random.bits(key, (16,), jnp.uint32), core_random.random_words(key, 16))
         return [jax.random.key_data(k) for k in (split[0], split[1], *fast)], words
 
     (split0, split1, fast0, fast1), (bits, fast_bits) = jax.device_get(jax.jit(jax.vmap(both))(keys))

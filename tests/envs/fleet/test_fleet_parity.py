@@ -23,11 +23,11 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 
 from wrl_jax.core.grid import MOVES_WITH_WAIT, UNREACHABLE
-from wrl_jax.envs.fleet.env import FLAGS, draw_tasks, step_keys
+from wrl_jax.envs.fleet.dynamics import FLAGS, draw_tasks, step_keys
 from wrl_jax.envs.fleet.layout import FleetLayout, parse_fleet
+from wrl_jax.envs.fleet.maps import FLEET_12X12
 from wrl_jax.envs.fleet.reference import FleetReference, RefState
 from wrl_jax.envs.fleet.registration import make_fleet
-from wrl_jax.envs.fleet.maps import FLEET_12X12
 
 SQUARE_6X6 = """
 S S . . 0 .

@@ -23,7 +23,7 @@ from wrl_jax.cli import plan
 from wrl_jax.core.grid import UNREACHABLE
 from wrl_jax.core.registry import make
 from wrl_jax.envs.fleet import metrics, planners
-from wrl_jax.envs.fleet.env import resolve_conflicts
+from wrl_jax.envs.fleet.conflicts import resolve_conflicts
 
 STEPS = [(-1, 0), (1, 0), (0, -1), (0, 1), (0, 0)]  # actions 0 up, 1 down, 2 left, 3 right, 4 wait
 HORIZON = 256

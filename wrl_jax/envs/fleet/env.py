@@ -1,30 +1,20 @@
 """The fleet environment of FLEET_SPEC.md in JAX: K robots, lifelong pick-and-place, one shared shift.
 
-The transition is split in two so the NumPy reference can replay it bit for bit:
-
-- :func:`draw_tasks` turns a key into one candidate task per robot (the only
-  randomness): ``jax.random.bits(key, (2, K), uint32)`` modulo
-  ``num_items`` (row 0: items) and ``num_stations`` (row 1: stations). Reset
-  gives every robot its candidate; a transition only robots that delivered.
-- :func:`fleet_transition` and :func:`fleet_reset` are deterministic in the
-  drawn tasks.
+The MDP is :mod:`wrl_jax.envs.fleet.dynamics` (the task draw, the transition, the reset),
+the observation :mod:`wrl_jax.envs.fleet.observation`, the conflict rule
+:mod:`wrl_jax.envs.fleet.conflicts`; this module is the environment class around them.
 
 ``Fleet.step`` gives the base class's results bit for bit (``key_step, key_reset =
 split(key)``, the transition draws from ``key_step``, the auto-reset on truncation from
-``key_reset``; see :func:`step_keys`), computed more cheaply: threefry written out
-(:func:`threefry2x32`), the auto-reset only on steps where some env truncates
-(:func:`only_where`), observations from int32 bit masks (:func:`observation_parts`).
-
-The conflict rule (steps 1-4: proposals, rounds, who moves) is
-:mod:`wrl_jax.envs.fleet.conflicts`; the random words are in :mod:`wrl_jax.core.random`,
-the windows in :mod:`wrl_jax.core.observation`. What stays here, the draws, the
-transition, the observation hook and the environment class, is the rest of FLEET_SPEC.md's
-MDP, which the NumPy reference is checked against bit for bit.
+``key_reset``; see :func:`~wrl_jax.envs.fleet.dynamics.step_keys`), computed more cheaply:
+threefry written out, the auto-reset only on steps where some env truncates
+(:func:`~wrl_jax.envs.fleet.dynamics.only_where`), observations from int32 bit masks.
 """
 
 from __future__ import annotations
 
 from functools import partial
+from types import MappingProxyType
 from typing import Any
 
 import jax
@@ -33,241 +23,16 @@ import numpy as np
 
 from wrl_jax.core.environment import Environment
 from wrl_jax.core.gymnax_base import spaces
-from wrl_jax.core.grid import MOVES_WITH_WAIT
 from wrl_jax.core.observation import (
     bit_windows_supported,
-    coordinate_table,
     expand_observations,
     observation_size,
-    robot_observation_parts,
-    robot_observations,
-    seen_masks,
-    window_masks,
     window_size,
 )
-from wrl_jax.core.random import (  # noqa: F401 (threefry re-exported)
-    random_words,
-    split_key,
-    threefry2x32,
-    threefry_key_data,
-    words_modulo,
-)
-from wrl_jax.envs.fleet.conflicts import (  # noqa: F401 (propose, resolve_conflicts re-exported)
-    propose,
-    propose_cells,
-    resolve_cells,
-    resolve_conflicts,
-)
-from wrl_jax.envs.fleet.types import FleetParams, FleetState, FleetTasks
-
-NUM_ACTIONS = 5
-"""0 up, 1 down, 2 left, 3 right, 4 wait."""
-
-WAIT = 4
-
-MEMORY_SIZE = NUM_ACTIONS + 1
-"""Values ``observe_last_action`` appends: the previous action one-hot, then whether it was blocked."""
-
-FLAGS = ("shelf_hit", "wall_bump", "robot_block", "picked_up", "delivered", "waited")
-"""Per-robot bool ``(K,)`` entries of a transition's ``info`` (``waited``: action 4, for the metrics)."""
-
-
-def draw_tasks(key: jax.Array, params: FleetParams, num_robots: int) -> FleetTasks:
-    """One uniform candidate ``(item, station)`` per robot from ``key`` (the documented draw method).
-
-    ``jax.random.bits(key, (2, K), uint32)`` (computed by :func:`random_words`,
-    the same bits), reduced modulo ``num_items`` (row 0) and ``num_stations``
-    (row 1) (:func:`~wrl_jax.core.random.words_modulo`: the remainder without
-    integer division). The modulo bias is below ``n / 2**32`` (< 1.5e-8 for the
-    62 item markers), far under any sampling noise, and the program is a third of
-    ``jax.random.randint``'s, which matters since ``step`` draws twice per
-    transition (the tasks and the auto-reset's).
-    """
-    words = random_words(key, 2 * num_robots).reshape(2, num_robots)
-    bounds = jnp.stack([params.num_items, params.num_stations]).astype(jnp.uint32)[:, None]
-    drawn = words_modulo(words, bounds)
-    return FleetTasks(item=drawn[0].astype(jnp.int32), station=drawn[1].astype(jnp.int32))
-
-
-def step_keys(key: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """``(transition key, reset key)`` of ``Fleet.step(key, ...)``: ``jax.random.split(key)``, bit for bit."""
-    return split_key(key, 0), split_key(key, 1)
-
-
-
-def only_where(pred: jax.Array, compute, operand: jax.Array, otherwise):
-    """``compute(operand)`` where ``pred``, else ``otherwise`` (same pytree); computed only when needed.
-
-    A ``lax.while_loop`` that runs at most once. Why not ``jnp.where`` or ``lax.cond``: under
-    ``vmap`` both evaluate ``compute`` for every env on every step. A batched while runs its body
-    only while some env of the batch still needs it (then selects per env), so the auto-reset of
-    fleets that share a shift clock (the usual batch: all start together, all truncate together)
-    costs one batch-wide test on the steps between truncations. ``operand`` (an unsigned integer
-    array, e.g. key data) rides in the loop carry and is changed by the body, so XLA cannot hoist
-    ``compute`` out of the loop as loop-invariant (which would run it on every step again).
-    """
-    def body(carry):
-        _, data, _ = carry
-        return jnp.zeros((), dtype=bool), data + np.asarray(1, dtype=data.dtype), compute(data)
-
-    return jax.lax.while_loop(lambda carry: carry[0], body, (jnp.asarray(pred), operand, otherwise))[2]
-
-
-# ----------------------------------------------------------------- deterministic core
-def targets(state: FleetState, params: FleetParams) -> jax.Array:
-    """Each robot's current target cell ``(K, 2)``: its item while empty, its station while carrying."""
-    return jnp.where(state.carrying[:, None], params.stations[state.station], params.items[state.item])
-
-
-def target_distances(pos: jax.Array, state: FleetState, params: FleetParams) -> jax.Array:
-    """``d(pos_i, t_i)`` ``(K,)`` int32 with the targets of ``state``: BFS tables, or Manhattan if switched."""
-    rows, cols = pos[:, 0], pos[:, 1]
-    bfs = jnp.where(state.carrying, params.station_dist[state.station, rows, cols],
-                    params.item_dist[state.item, rows, cols])
-    manhattan = jnp.abs(pos - targets(state, params)).sum(axis=1).astype(jnp.int32)
-    return jnp.where(params.manhattan_shaping, manhattan, bfs)
-
-
-def reward_terms(params: FleetParams, flags: dict[str, jax.Array], shaping: jax.Array) -> jax.Array:
-    """Step 6: float32 ``(K,)`` rewards, the terms added in FLEET_SPEC.md's order."""
-    zero = jnp.zeros_like(params.step_penalty)
-    reward = jnp.broadcast_to(params.step_penalty, shaping.shape)
-    reward = reward + jnp.where(flags["shelf_hit"], params.obstacle_penalty, zero)
-    reward = reward + jnp.where(flags["wall_bump"], params.wall_penalty, zero)
-    reward = reward + jnp.where(flags["robot_block"], params.block_penalty, zero)
-    reward = reward + params.shaping_coef * shaping.astype(jnp.float32)
-    reward = reward + jnp.where(flags["picked_up"], params.pickup_reward, zero)
-    reward = reward + jnp.where(flags["delivered"], params.delivery_reward, zero)
-    return reward
-
-
-def _target_index(state: FleetState, params: FleetParams) -> jax.Array:
-    """Each robot's target as a row of :func:`_target_cells`: ``item`` while empty, ``I + station`` while carrying."""
-    return jnp.where(state.carrying, params.items.shape[0] + state.station, state.item)
-
-
-def _target_cells(params: FleetParams) -> jax.Array:
-    """``(I + G, 2)`` int32: the item rows, then the station rows (one gather finds any robot's target)."""
-    return jnp.concatenate([params.items, params.stations], axis=0)
-
-
-def _distance_rows(params: FleetParams) -> jax.Array:
-    """``((I + G) N^2,)`` int32: the item then station BFS tables, flat (one gather finds any ``d(cell, t_i)``)."""
-    return jnp.concatenate([params.item_dist, params.station_dist], axis=0).reshape(-1)
-
-
-def fleet_transition(state: FleetState, action: jax.Array, tasks: FleetTasks, params: FleetParams):
-    """One transition without reset (steps 1-8), deterministic in ``tasks``.
-
-    Returns ``(next_state, reward (K,), truncated (), flags)``; ``flags`` maps
-    each name of :data:`FLAGS` to a bool ``(K,)``. Each robot's target and its
-    distances are read with one index into the stacked item/station tables.
-    """
-    size = params.shelves.shape[0]
-    action = jnp.asarray(action, dtype=jnp.int32)
-    row, col = state.pos[:, 0], state.pos[:, 1]
-    q_row, q_col, wall_bump, shelf_hit = propose_cells(row, col, action, params.shelves)
-    next_row, next_col, robot_block = resolve_cells(row, col, q_row, q_col)
-    next_pos = jnp.stack([next_row, next_col], axis=-1)
-    target_row = _target_index(state, params)
-    target = _target_cells(params)[target_row]
-    on_target = jnp.all(next_pos == target, axis=1)
-    picked_up = ~state.carrying & on_target
-    delivered = state.carrying & on_target
-    table = _distance_rows(params)
-    base = target_row * (size * size)
-    bfs = (table[base + state.pos[:, 0] * size + state.pos[:, 1]]
-           - table[base + next_pos[:, 0] * size + next_pos[:, 1]])
-    manhattan = (jnp.abs(state.pos - target).sum(axis=1) - jnp.abs(next_pos - target).sum(axis=1)).astype(jnp.int32)
-    shaping = jnp.where(params.manhattan_shaping, manhattan, bfs)
-    flags = dict(shelf_hit=shelf_hit, wall_bump=wall_bump, robot_block=robot_block, picked_up=picked_up,
-                 delivered=delivered, waited=action == WAIT)
-    reward = reward_terms(params, flags, shaping)
-    time = state.time + 1
-    next_state = FleetState(
-        pos=next_pos,
-        item=jnp.where(delivered, tasks.item, state.item),
-        station=jnp.where(delivered, tasks.station, state.station),
-        carrying=(state.carrying | picked_up) & ~delivered,
-        time=time,
-    )
-    return next_state, reward, time >= params.max_steps, flags
-
-
-def fleet_reset(tasks: FleetTasks, params: FleetParams) -> FleetState:
-    """A fresh shift: robots on their starts, empty-handed, with the drawn tasks."""
-    return FleetState(pos=params.starts, item=tasks.item, station=tasks.station,
-                      carrying=jnp.zeros(params.starts.shape[0], dtype=bool), time=jnp.zeros((), jnp.int32))
-
-
-def fleet_observation(state: FleetState, params: FleetParams, view_radius: int, priority: bool = False,
-                      headings: bool = False) -> jax.Array:
-    """``(K, 5 + 3 (2V+1)^2)`` float32 observations (FLEET_SPEC.md), through :mod:`wrl_jax.core.observation`.
-
-    For ``V <= 2`` from bit masks (:func:`observation_parts`), the same bits as
-    :func:`~wrl_jax.core.observation.robot_observations`, several times cheaper under ``vmap``.
-    ``priority`` (``V <= 2``) appends a fourth window channel, ``(K, 5 + 4 (2V+1)^2)``: the other
-    robots with a lower index than the observer (:attr:`Fleet.observe_priority`); ``headings`` (``V <= 2``,
-    needs ``state.last_action``) one more: the cells the other robots would enter by repeating their
-    previous action (:func:`heading_masks`).
-    """
-    if not bit_windows_supported(view_radius):
-        target = _target_cells(params)[_target_index(state, params)]
-        return robot_observations(params.shelves, state.pos, target, state.carrying, view_radius)
-    return expand_observations(*observation_parts(state, params, view_radius, priority, headings), view_radius)
-
-
-def observation_parts(state: FleetState, params: FleetParams, view_radius: int,
-                      priority: bool = False, headings: bool = False) -> tuple[jax.Array, tuple[jax.Array, ...]]:
-    """The observations' compact form ``(scalars (K, 5), masks)``, 3 to 5 ``(K,)`` int32 masks (``V <= 2``; see
-    ``robot_observation_parts``; ``headings`` appends :func:`heading_masks`).
-
-    The shelf masks come from a table of the layout (:func:`~wrl_jax.core.observation.window_masks`),
-    one gather per robot; with params shared by a batch the table is built once per step.
-    """
-    size = params.shelves.shape[0]
-    target = _target_cells(params)[_target_index(state, params)]
-    masks = window_masks(params.shelves, view_radius).reshape(-1)[state.pos[:, 0] * size + state.pos[:, 1]]
-    scalars, masks = robot_observation_parts(masks, state.pos, target, state.carrying, view_radius, size, priority)
-    if headings:
-        masks = (*masks, heading_masks(state.pos, state.last_action, view_radius))
-    return scalars, masks
-
-
-def heading_masks(pos: jax.Array, last_action: jax.Array, view_radius: int) -> jax.Array:
-    """``(K,)`` int32 window masks: bit ``w`` of robot ``i`` set on the cell another robot's previous
-    action aimed at (the cell it would try again by repeating it, whether or not it got there; its own
-    cell if that action was a wait, and at the start of a shift).
-
-    Why: a robot's window shows where the others *are*, not where they go; two robots that step
-    into one free cell, or into each other, are both blocked or one of them is (FLEET_SPEC.md step 3).
-    In aisles robots mostly keep going, so the repeated move is a cheap guess of the next cell.
-    """
-    ahead = pos + jnp.asarray(MOVES_WITH_WAIT)[jnp.where(last_action < 0, WAIT, last_action)]
-    return seen_masks(pos, ahead, view_radius, ~np.eye(pos.shape[0], dtype=bool))
-
-
-def global_state(state: FleetState, params: FleetParams) -> jax.Array:
-    """A fixed-size view of the whole fleet for centralised critics, ``(4 N^2 + 5 K + 1,)`` float32.
-
-    Four ``N x N`` planes, row-major: shelves; robot occupancy; cells some
-    robot is heading to (its current target); cells of carrying robots. Then
-    each robot's five observation scalars in robot order (who is where and
-    where it goes: the planes alone lose robot identity), then the elapsed
-    fraction of the shift ``time / max_steps`` (the value of a truncated
-    shift depends on it).
-    """
-    size = params.shelves.shape[0]
-    target = targets(state, params)
-    empty = jnp.zeros((size, size), dtype=jnp.float32)
-    robots = empty.at[state.pos[:, 0], state.pos[:, 1]].set(1.0)
-    heading = empty.at[target[:, 0], target[:, 1]].set(1.0)
-    loaded = empty.at[state.pos[:, 0], state.pos[:, 1]].max(state.carrying.astype(jnp.float32))
-    table = jnp.asarray(coordinate_table(size))  # the observation's exact scalars
-    scalars = jnp.concatenate([table[state.pos], table[target], state.carrying.astype(jnp.float32)[:, None]], axis=1)
-    elapsed = state.time.astype(jnp.float32) / params.max_steps.astype(jnp.float32)
-    planes = jnp.stack([params.shelves.astype(jnp.float32), robots, heading, loaded])
-    return jnp.concatenate([planes.reshape(-1), scalars.reshape(-1), elapsed[None]])
+from wrl_jax.core.random import split_key
+from wrl_jax.envs.fleet.dynamics import NUM_ACTIONS, WAIT, draw_tasks, fleet_reset, fleet_transition, only_where
+from wrl_jax.envs.fleet.observation import MEMORY_SIZE, fleet_observation, global_state, observation_parts
+from wrl_jax.envs.fleet.types import FleetParams, FleetState
 
 
 # ----------------------------------------------------------------- spaces
@@ -318,6 +83,8 @@ class Fleet(Environment[FleetState, FleetParams]):
     """
 
     family = "fleet"
+    event_metrics = MappingProxyType({"delivered": "deliveries_sum", "robot_block": "robot_blocks_sum",
+                                      "shelf_hit": "shelf_hits_sum"})
 
     def __init__(self, params: FleetParams, view_radius: int = 2, name: str = "Fleet", observe_priority: bool = False,
                  observe_last_action: bool = False, observe_headings: bool = False):
@@ -386,8 +153,8 @@ class Fleet(Environment[FleetState, FleetParams]):
         """The base class's ``step`` (same keys, draws, outputs and bits), with a cheaper auto-reset.
 
         The auto-reset (reset key, task draw, fresh observation) runs only on steps where some env
-        truncates (:func:`only_where`), and the select of reset against reached observation is
-        done on their compact form (:func:`observation_parts`), expanded once per output.
+        truncates (:func:`~wrl_jax.envs.fleet.dynamics.only_where`), and the select of reset against reached observation is
+        done on their compact form (:func:`~wrl_jax.envs.fleet.observation.observation_parts`), expanded once per output.
         """
         params = self.default_params if params is None else params
         self.check_action(action)

@@ -29,9 +29,9 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from wrl_jax.core.evaluation import FamilyEvaluation, FinalContext, SweepColumns, SweepMetric, TrainRate
 from wrl_jax.envs.fleet import metrics
 from wrl_jax.stats import mean_ci
-from wrl_jax.core.evaluation import FamilyEvaluation, FinalContext, SweepColumns, SweepMetric
 
 EVAL_SEED = 0
 """``python -m wrl_jax.plan``'s default ``--seed``: the evaluation's shifts are the planners'."""
@@ -300,6 +300,7 @@ EVALUATION = FamilyEvaluation(
     format_report=format_report,
     format_details=format_details,
     progress_metric=("eval_vs_pibt", "of PIBT"),
+    train_rates=(TrainRate("train_throughput", "deliveries per step (training)", "deliveries_sum", per="step"),),
     final_report=final_report,
     # A sweep reads the periodic evaluation after the last update (the final report's
     # 100-shift evaluation runs only after a single training run).

@@ -64,7 +64,7 @@ CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
 PIBT's ``lax.while_loop`` of small ``(K,)``-wide selects and gathers runs faster when XLA's CPU
 backend emits its fusions with the classic elemental emitter instead of the newer MLIR fusion
-emitters: PIBT alone on 4,096 recorded states 1.3x at K = 8 and 1.2x at K = 4 (``bench/pibt_profile.py``,
+emitters: PIBT alone on 4,096 recorded states 1.3x at K = 8 and 1.2x at K = 4 (``bench/investigations/pibt_profile.py``,
 timed interleaved; 1.3-1.35x at K = 8 in three runs of ``bench/fleet_throughput.py``), the vmapped
 fleet step with PIBT actions 1.3x, :func:`wrl_jax.envs.fleet.metrics.run_episodes` 1.15x; the same
 moves bit for bit (tested). The step with random actions goes the other way (2x slower with

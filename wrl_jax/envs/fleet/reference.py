@@ -5,7 +5,7 @@ computes its own BFS distances, loops over robots and conflict rounds in
 Python, and adds the float32 reward terms one by one in the contract's
 order. It does no random draws: like the JAX core it takes each
 transition's drawn tasks (``item``, ``station``: one candidate per robot) as
-inputs, so a test draws them once with :func:`wrl_jax.envs.fleet.env.draw_tasks`
+inputs, so a test draws them once with :func:`wrl_jax.envs.fleet.dynamics.draw_tasks`
 and feeds both.
 
 It is slow by design (clarity over speed): use it for tests and tiny runs.

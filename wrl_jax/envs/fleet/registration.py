@@ -15,8 +15,8 @@ from wrl_jax.core.grid import UNREACHABLE
 from wrl_jax.envs.fleet import maps
 from wrl_jax.envs.fleet.env import Fleet
 from wrl_jax.envs.fleet.layout import FleetLayout, parse_fleet
-from wrl_jax.envs.warehouse.layout import bfs_distances
 from wrl_jax.envs.fleet.types import FleetParams
+from wrl_jax.envs.warehouse.layout import bfs_distances
 
 REWARD_DEFAULTS = {
     "step_penalty": -0.5,

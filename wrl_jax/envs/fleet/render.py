@@ -29,7 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from wrl_jax.envs.fleet.env import Fleet, targets
+from wrl_jax.envs.fleet.dynamics import targets
+from wrl_jax.envs.fleet.env import Fleet
 from wrl_jax.envs.fleet.types import FleetParams, FleetState
 from wrl_jax.envs.warehouse.render import check_cell_size, save_gif
 

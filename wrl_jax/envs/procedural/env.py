@@ -43,6 +43,7 @@ switch. What differs is where the layout comes from and what is observed:
 
 from __future__ import annotations
 
+from types import MappingProxyType
 from typing import Any
 
 import jax
@@ -112,6 +113,7 @@ class ProceduralWarehouse(ProceduralObservation, PoolParams, Environment[Procedu
 
     num_actions = NUM_ACTIONS
     family = "procedural"
+    event_metrics = MappingProxyType({"collision": "collisions_sum"})  # training moves into shelves
 
     def __init__(self, default_params: ProceduralParams | None = None, *, generator: GeneratorConfig,
                  pool_size: int, view_radius: int = 2, observe_map: bool = False, observe_window: bool = True,

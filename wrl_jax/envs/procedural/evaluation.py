@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from wrl_jax.core.evaluation import FamilyEvaluation, FinalContext, SweepColumns, SweepMetric
+from wrl_jax.core.evaluation import FamilyEvaluation, FinalContext, SweepColumns, SweepMetric, TrainRate
 from wrl_jax.envs.procedural.layout_sets import EVAL_SEED, LayoutSet, heldout_set, ood_sets, pad_items
 from wrl_jax.envs.procedural.pool import LayoutPool, generate_pool, pool_of
 from wrl_jax.envs.procedural.reports import episode_stats, format_details, format_report
@@ -227,6 +227,8 @@ EVALUATION = FamilyEvaluation(
     format_report=format_report,
     format_details=format_details,
     progress_metric=("eval_success_rate", "held-out delivered"),
+    train_rates=(TrainRate("delivery_rate", "delivery rate (training episodes)", "terminated",
+                           progress="delivered"),),
     final_report=final_report,
     # A sweep reads the periodic evaluation after the last update (EVAL_LAYOUTS held-out layouts).
     sweep_columns=SweepColumns(

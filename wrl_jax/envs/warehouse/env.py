@@ -25,6 +25,7 @@ NumPy reference is checked against bit for bit; it reads best in one place.
 
 from __future__ import annotations
 
+from types import MappingProxyType
 from typing import Any
 
 import jax
@@ -62,6 +63,7 @@ class Warehouse(Environment[EnvState, EnvParams]):
     """
 
     family = "warehouse"
+    event_metrics = MappingProxyType({"collision": "collisions_sum"})  # training moves into shelves
 
     def __init__(
         self,

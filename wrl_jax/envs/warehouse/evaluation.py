@@ -41,10 +41,10 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from wrl_jax.core.evaluation import FamilyEvaluation, SweepColumns, SweepMetric, TrainRate
 from wrl_jax.envs.warehouse import routes
 from wrl_jax.envs.warehouse.env import Warehouse
 from wrl_jax.envs.warehouse.types import EnvParams
-from wrl_jax.core.evaluation import FamilyEvaluation, SweepColumns, SweepMetric
 
 GreedyFn = Callable[[Any, jax.Array], jax.Array]
 """``greedy_action(network_params, obs) -> action`` for one observation."""
@@ -325,6 +325,8 @@ EVALUATION = FamilyEvaluation(
     format_report=format_table3,
     format_details=format_items,
     progress_metric=("eval_optimal_rate", "eval optimal"),
+    train_rates=(TrainRate("delivery_rate", "delivery rate (training episodes)", "terminated",
+                           progress="delivered"),),
     sweep_columns=SweepColumns(
         metrics=(
             SweepMetric("success_rate", "greedy success", "percent", plot="greedy success rate (%)"),

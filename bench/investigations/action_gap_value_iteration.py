@@ -3,7 +3,7 @@
 Value iteration on Warehouse-12x12-v0's MDP (SPEC.md rewards x 0.01, the PPO default's reward
 scale; gamma 0.95) per item, over (cell, carrying). For every state on a shortest route it takes
 the gap between the best shortest-route action's Q and the best other action's Q, and prints the
-smallest gap per item. ``.venv/bin/python bench/results/ppo_default_robustness/action_gap_value_iteration.py``
+smallest gap per item. ``.venv/bin/python bench/investigations/action_gap_value_iteration.py``
 (pure Python, a few minutes). Output: action_gap_value_iteration.txt.
 """
 import numpy as np

@@ -6,8 +6,8 @@ checksum. This program does only that, with values that cost nothing to make (a 
 iota), in the same shape of program (a ``lax.scan`` over steps, the batch split over host devices
 with ``shard_map``): its robot-steps/s is the most any fleet step could reach with those bytes.
 
-    .venv/bin/python bench/observation_floor.py                       # K = 8, D = 80, 8 devices
-    .venv/bin/python bench/observation_floor.py --devices 16 --batch 8192 32768
+    .venv/bin/python bench/investigations/observation_floor.py                       # K = 8, D = 80, 8 devices
+    .venv/bin/python bench/investigations/observation_floor.py --devices 16 --batch 8192 32768
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 if str(ROOT / "bench") not in sys.path:

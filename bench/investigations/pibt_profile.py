@@ -15,9 +15,9 @@ file on the same states, timed interleaved with the current one, its moves check
 
 Run from the repository root::
 
-    .venv/bin/python bench/pibt_profile.py --robots 4 8 --batch 4096
+    .venv/bin/python bench/investigations/pibt_profile.py --robots 4 8 --batch 4096
     git show 37682ab:wrl_jax/envs/fleet/planners.py > /tmp/planners_before.py
-    .venv/bin/python bench/pibt_profile.py --robots 8 --batch 32768 --baseline /tmp/planners_before.py
+    .venv/bin/python bench/investigations/pibt_profile.py --robots 8 --batch 32768 --baseline /tmp/planners_before.py
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench/: host_split
 
 
 def _median_seconds(fns, args, repeats: int) -> list[float]:

@@ -20,8 +20,8 @@ default generator, the same 1,024 layouts and 4,630 episodes), so its excess (ov
 episodes, as a fraction of their mean optimum, like the final report's) compares with the policy's.
 Run from the repository root::
 
-    .venv/bin/python bench/procedural_explorer.py --json bench/results/procedural_explorer.json
-    .venv/bin/python bench/procedural_explorer.py --layouts 64   # quick
+    .venv/bin/python bench/investigations/procedural_explorer.py --json bench/results/procedural_explorer.json
+    .venv/bin/python bench/investigations/procedural_explorer.py --layouts 64   # quick
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 

@@ -29,8 +29,8 @@ case once, interleaved, median reported. ``--baseline FILE`` adds the same cases
 ``wrl_jax/envs/fleet/env.py`` (with ``--baseline-obs FILE``, an older ``wrl_jax/core/observation.py``
 for it to import), so a before/after ratio is measured in one process. Run from the repository root::
 
-    .venv/bin/python bench/fleet_step_profile.py --robots 8 --batch 8192 --parts step core obs
-    .venv/bin/python bench/fleet_step_profile.py --robots 8 --batch 8192 --devices 8 --parts step obs \
+    .venv/bin/python bench/investigations/fleet_step_profile.py --robots 8 --batch 8192 --parts step core obs
+    .venv/bin/python bench/investigations/fleet_step_profile.py --robots 8 --batch 8192 --devices 8 --parts step obs \
         --baseline /tmp/env_before.py --baseline-obs /tmp/obs_before.py   # files from `git show COMMIT:PATH`
 """
 
@@ -45,9 +45,11 @@ import time
 import types
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
+if str(ROOT / "bench") not in sys.path:
+    sys.path.insert(0, str(ROOT / "bench"))  # host_split
 
 if __name__ == "__main__":
     # --devices N splits the CPU into N XLA host devices, which XLA reads once, when JAX starts.
@@ -63,13 +65,20 @@ from jax.sharding import PartitionSpec as P  # noqa: E402
 
 import wrl_jax.envs  # noqa: E402, F401  (registers the names)
 from wrl_jax.core.registry import make  # noqa: E402
-from wrl_jax.envs.fleet import env as current_module  # noqa: E402
+from wrl_jax.envs.fleet import conflicts, dynamics, observation  # noqa: E402
+from wrl_jax.envs.fleet.env import Fleet  # noqa: E402
+
+# The current code as one namespace, shaped like the older single-module env.py files it is compared with.
+current_module = types.SimpleNamespace(**{**vars(conflicts), **vars(observation), **vars(dynamics), "Fleet": Fleet})
 
 PARTS = ("step", "read", "transition", "core", "obs", "conflicts", "draw", "reset")
 
 
 def load_baseline(env_file: str, obs_file: str | None) -> types.ModuleType:
-    """An older ``env.py`` as a module; with ``obs_file``, importing its observation functions from that file."""
+    """An older ``env.py`` as a module; with ``obs_file``, importing its observation functions from that file.
+
+    Functions the file does not define (the current ``env.py`` keeps only the class: the MDP is in
+    ``dynamics.py``, ``observation.py`` and ``conflicts.py``) come from the current code."""
     source = Path(env_file).read_text()
     if obs_file:
         spec = importlib.util.spec_from_file_location("fleet_profile_baseline_observation", obs_file)
@@ -79,6 +88,8 @@ def load_baseline(env_file: str, obs_file: str | None) -> types.ModuleType:
         source = source.replace("from wrl_jax.core.observation import", f"from {spec.name} import")
     module = types.ModuleType("fleet_profile_baseline_env")
     exec(compile(source, env_file, "exec"), module.__dict__)  # noqa: S102 (a local file the user names)
+    for name, value in vars(current_module).items():
+        module.__dict__.setdefault(name, value)
     return module
 
 
