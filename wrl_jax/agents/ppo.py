@@ -122,7 +122,8 @@ class PPO(ActorCritic, Algorithm[PPORunner]):
         env_params = self.env_params if env_params is None else env_params
         key, k_params, k_env = jax.random.split(key, 3)
         params = self.flatten(self._init_networks(k_params))
-        obs, env_state = self.env.batch_reset(k_env, self.config.num_envs, env_params)
+        obs, env_state = jax.vmap(self.env.reset, in_axes=(0, None))(
+            jax.random.split(k_env, self.config.num_envs), env_params)
         return PPORunner(
             params=params,
             opt_state=self.adam.init(params),
@@ -143,7 +144,9 @@ class PPO(ActorCritic, Algorithm[PPORunner]):
         # Every random number of the update comes from four draws made here, not
         # from draws inside the scans: each threefry call site costs compile time.
         key, k_env, k_act, k_order = jax.random.split(runner.key, 4)
-        env_keys = jax.random.split(k_env, cfg.num_steps)  # one per step: env.batch_step splits it per env
+        # A key per step and environment, for vmap(env.step): PPO's stream since its first results (see
+        # docs/architecture.md, "Stepping"), kept so that every published PPO number stays reproducible.
+        env_keys = jax.random.split(k_env, cfg.num_steps * cfg.num_envs).reshape(cfg.num_steps, cfg.num_envs, -1)
         agents = () if self.num_agents is None else (self.num_agents,)
         gumbel = jax.random.gumbel(k_act, (cfg.num_steps, cfg.num_envs, *agents, self.env.num_actions))
         global_states = jax.vmap(self.env.global_state, in_axes=(0, None)) if self.centralized else None
@@ -151,14 +154,14 @@ class PPO(ActorCritic, Algorithm[PPORunner]):
         # 1. rollout
         def env_step(carry, step_inputs):
             env_state, obs, stats = carry
-            step_key, step_gumbel = step_inputs
+            step_keys, step_gumbel = step_inputs
             logits = self.forward(networks["actor"], obs)
             log_probs = jax.nn.log_softmax(logits)
             action = jnp.argmax(log_probs + step_gumbel, axis=-1)  # Gumbel-max: a sample of softmax(logits)
             log_prob = jnp.take_along_axis(log_probs, action[..., None], axis=-1)[..., 0]
-            next_obs, next_state, reward, terminated, truncated, info = self.env.batch_step(
-                step_key, env_state, action, runner.env_params
-            )
+            next_obs, next_state, reward, terminated, truncated, info = jax.vmap(
+                self.env.step, in_axes=(0, 0, 0, None)
+            )(step_keys, env_state, action, runner.env_params)
             extras = {}
             if self.num_agents is not None:
                 team_reward = reward.sum(axis=-1)  # an episode's return: the fleet's, summed over robots
