@@ -36,11 +36,11 @@ import wrl_jax  # noqa: E402
 ENV_NAMES = ["Warehouse-8x8-v0", "Warehouse-12x12-v0"]
 
 HEAVY_MODULES = (
-    "test_sharding", "test_notebooks", "test_fleet_training", "test_experiments", "test_training", "test_ppo",
-    "test_procedural", "test_dqn", "test_sweep", "test_cli", "test_gymnax_clients", "test_fleet_env",
-    "test_gymnax_api", "test_parity",
+    "test_sharding", "test_notebooks", "test_procedural", "test_propagation", "test_fleet_training",
+    "test_experiments", "test_ppo", "test_fleet_env", "test_dqn", "test_procedural_refresh", "test_training",
+    "test_cli", "test_sweep", "test_bench_tools", "test_gymnax_clients", "test_gymnax_api", "test_install",
 )
-"""Test modules by the CPU time their tests took (``pytest -n 2 --durations=120``, 2026-12-01), most first.
+"""Test modules by the CPU time their tests took (``pytest -n 2 --durations=0``, summed per module, 2026-12-04), most first.
 
 ``make test`` runs ``pytest -n 2 --dist loadscope --no-loadscope-reorder``: a module is one work unit
 (its module-scoped fixtures, several of which train a run, are computed once, on one worker), and

@@ -92,3 +92,28 @@ def test_packages_a_command_imports_first_stay_light(module):
     # The commands import wrl_jax.cli.machine before JAX starts: these must not import JAX's users.
     heavy = {i for i in GRAPH[module] if _layer(i) is not None and _layer(i) >= LAYERS.index("agents")}
     assert not heavy, heavy
+
+
+FAMILY_WORDS = ("deliver", "collision", "shelf", "shelves", "robot", "pibt", "warehouse", "fleet", "procedural")
+"""Words of the environment families. The driver and the pieces every learner shares get a family's
+metrics, rates and reports through core's contracts (``FamilyEvaluation``, ``event_metrics``), never by name."""
+
+FAMILY_FREE = [*sorted(p for p in (PACKAGE / "training").glob("*.py")),
+               *(PACKAGE / "agents" / f"{name}.py" for name in ("base", "common", "replay", "networks", "initializers"))]
+
+
+def _code_strings(path: Path) -> list[tuple[int, str]]:
+    """The string constants of a module's code (docstrings left out: they may explain with an example)."""
+    tree = ast.parse(path.read_text())
+    docstrings = {id(node.body[0].value) for node in ast.walk(tree)
+                  if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+                  and node.body and isinstance(node.body[0], ast.Expr) and isinstance(node.body[0].value, ast.Constant)}
+    return [(node.lineno, node.value) for node in ast.walk(tree)
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings]
+
+
+@pytest.mark.parametrize("path", FAMILY_FREE, ids=lambda path: f"{path.parent.name}/{path.name}")
+def test_the_driver_and_shared_learner_pieces_name_no_family(path):
+    named = [f"{path.name}:{line}: {text!r}" for line, text in _code_strings(path)
+             if any(word in text.lower() for word in FAMILY_WORDS)]
+    assert not named, "family words in code:\n" + "\n".join(named)

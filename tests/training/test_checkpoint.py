@@ -161,3 +161,22 @@ def test_a_run_saved_before_the_package_move_still_evaluates_the_same(tmp_path):
         assert now[key] == then[key], key
     assert abs(now["mean_return"] - then["mean_return"]) < 1e-3
     assert [s["success_rate"] for s in now["per_seed"]] == [s["success_rate"] for s in then["per_seed"]]
+
+
+def test_tensorboard_writer_loads_without_importing_torch(tmp_path, monkeypatch):
+    """tensorboardX imports PyTorch when it is installed (1.3 s of a command's start-up): the writer hides it
+    while tensorboardX loads, writes events all the same, and leaves ``import torch`` possible afterwards."""
+    import sys
+
+    torch_loaded = sys.modules.get("torch")  # another test of this process may have imported it (SB3)
+    for name in [m for m in sys.modules if m.startswith("tensorboardX")]:
+        monkeypatch.delitem(sys.modules, name)  # tensorboardX loads again, as in a fresh process
+    writer_class = metrics_io._summary_writer_class()
+    if torch_loaded is None:
+        assert "torch" not in sys.modules  # neither imported nor left blocked (a None entry)
+    else:
+        assert sys.modules["torch"] is torch_loaded
+    writer = writer_class(str(tmp_path))
+    writer.add_scalar("mean_return", 1.5, 10)
+    writer.close()
+    assert any(path.name.startswith("events.out.tfevents") for path in tmp_path.iterdir())

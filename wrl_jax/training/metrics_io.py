@@ -144,6 +144,26 @@ class MetricsWriter:
             self.tensorboard.close()
 
 
+def _summary_writer_class() -> type:
+    """tensorboardX's ``SummaryWriter``, imported without PyTorch.
+
+    tensorboardX imports ``torch`` when it is installed, only to recognise its tensors (1.6 s of every
+    training command's start-up where PyTorch is present); we log Python floats. Unless ``torch`` is
+    loaded already, its import is hidden for the moment tensorboardX loads, then allowed again.
+    """
+    import sys
+
+    hide = "torch" not in sys.modules
+    if hide:
+        sys.modules["torch"] = None  # ``import torch`` raises ImportError, which tensorboardX handles
+    try:
+        from tensorboardX import SummaryWriter
+    finally:
+        if hide and sys.modules.get("torch", 0) is None:
+            del sys.modules["torch"]
+    return SummaryWriter
+
+
 class _TensorBoard:
     """Per-seed tensorboardX writers of the scalar metrics (NaN values are skipped)."""
 
@@ -162,7 +182,7 @@ class _TensorBoard:
 
     def _writer(self, seed: int):
         if seed not in self._writers:
-            from tensorboardX import SummaryWriter
+            SummaryWriter = _summary_writer_class()
 
             # Event files are named by the second they are opened in; a nanosecond
             # suffix keeps a run resumed within the same second from replacing the
