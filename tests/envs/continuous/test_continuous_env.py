@@ -1,0 +1,68 @@
+"""The JAX continuous warehouse's own contract: clear errors before compiling, the gymnax interface,
+the same bits from the same key, and moving obstacles that really move."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from wrl_jax.envs.continuous.registration import make_continuous
+from wrl_jax.envs.warehouse.maps import WAREHOUSE_8X8, WAREHOUSE_12X12
+
+
+@pytest.fixture(scope="module")
+def dynamic():
+    return make_continuous(WAREHOUSE_12X12, num_obstacles=4)
+
+
+def test_the_study_maps_take_the_contract_limits_and_other_layouts_name_theirs():
+    assert int(make_continuous(WAREHOUSE_8X8)[1].max_steps) == 300
+    assert int(make_continuous(WAREHOUSE_12X12)[1].max_steps) == 500
+    custom = WAREHOUSE_8X8.replace("G", ".", 1).replace(".", "G", 1)
+    with pytest.raises(ValueError, match="max_steps is needed"):
+        make_continuous(custom)
+
+
+@pytest.mark.parametrize("overrides, message", [
+    ({"v_max": 0.0}, "v_max must be positive"),
+    ({"robot_radius": 0.6}, "does not fit a 1 m cell"),
+    ({"gain_low": 1.3}, "gain range"),
+    ({"lidar_rang": 3.0}, "unknown continuous warehouse setting"),
+    ({"num_obstacles": 200}, "fewer than num_obstacles=200"),
+    ({"max_steps": 0}, "max_steps must be a positive integer"),
+])
+def test_bad_settings_are_refused_with_the_setting_named(overrides, message):
+    with pytest.raises(ValueError, match=message):
+        make_continuous(WAREHOUSE_12X12, **overrides)
+
+
+def test_actions_of_the_wrong_shape_or_kind_are_refused(dynamic):
+    env, params = dynamic
+    _, state = env.reset(jax.random.key(0), params)
+    with pytest.raises(ValueError, match=r"shape \(2,\)"):
+        env.step(jax.random.key(1), state, jnp.zeros(3), params)
+    with pytest.raises(ValueError, match="two floats"):
+        env.step(jax.random.key(1), state, np.array(["a", "b"]), params)
+    assert env.action_space(params).shape == (2,) and env.observation_space(params).shape == (43,)
+
+
+def test_same_key_same_bits_other_keys_differ_and_obstacles_move(dynamic):
+    env, params = dynamic
+
+    @jax.jit
+    def run(key):
+        obs, state = env.reset(key, params)
+
+        def one(state, k):
+            obs, state, reward, *_ = env.step(k, state, jnp.array([0.6, 0.3]), params)
+            return state, (obs, reward, state.obstacle_pos)
+
+        return jax.lax.scan(one, state, jax.random.split(key, 50))[1]
+
+    first, again, other = run(jax.random.key(3)), run(jax.random.key(3)), run(jax.random.key(4))
+    assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(first), jax.tree.leaves(again)))
+    assert not np.array_equal(first[2], other[2])
+    travelled = np.abs(np.diff(first[2], axis=0)).sum()
+    assert travelled > 4 * 50 * 0.5 * 0.2 * 0.5  # four obstacles at 0.1 m a step, moving most of the time

@@ -1,0 +1,135 @@
+"""The continuous warehouse of CONTINUOUS_SPEC.md in JAX: a disc robot with unicycle kinematics,
+an exact lidar, moving obstacles and domain randomization, on any layout of SPEC.md.
+
+The class draws the randomness (:meth:`ContinuousWarehouse.reset_draws`, :meth:`step_draws`) and
+hands it to the deterministic core (:mod:`wrl_jax.envs.continuous.dynamics`), so the NumPy
+reference replays a JAX episode from its draws. ``step`` is the base class's: transition, then
+the auto-reset where the episode ended.
+"""
+
+from __future__ import annotations
+
+from types import MappingProxyType
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from wrl_jax.core.environment import Environment
+from wrl_jax.core.gymnax_base import spaces
+from wrl_jax.envs.continuous.dynamics import OBS_SCALARS, reset_core, transition_core
+from wrl_jax.envs.continuous.geometry import PI
+from wrl_jax.envs.continuous.types import ContinuousParams, ContinuousState, ResetDraws, StepDraws
+
+
+class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
+    """CONTINUOUS_SPEC.md's MDP; build it with :func:`wrl_jax.envs.continuous.registration.make_continuous`.
+
+    Static configuration: the map's ``height`` x ``width``, ``num_rays`` (L), ``num_obstacles`` (M)
+    and the item slots; everything else is in params. Action: float32 ``(2,)`` in ``[-1, 1]``
+    (forward speed, turn rate, as fractions of ``v_max`` and ``w_max``).
+    """
+
+    family = "continuous"
+    event_metrics = MappingProxyType({"collision": "collisions_sum"})
+
+    def __init__(self, params: ContinuousParams, num_rays: int = 32, num_obstacles: int = 0,
+                 name: str = "Continuous-Warehouse"):
+        super().__init__(params)
+        self.height, self.width = (int(n) for n in params.shelves.shape)
+        self.num_rays, self.num_obstacles = int(num_rays), int(num_obstacles)
+        self.max_items = int(params.items.shape[0])
+        self._name = name
+
+    def static_config(self) -> tuple:
+        return (self.height, self.width, self.num_rays, self.num_obstacles, self.max_items)
+
+    @property
+    def name(self) -> str:
+        return self._name
+
+    @property
+    def obs_size(self) -> int:
+        return OBS_SCALARS + self.num_rays
+
+    @property
+    def num_actions(self) -> int:
+        """The action's length (two continuous commands)."""
+        return 2
+
+    def __repr__(self) -> str:
+        return (f"ContinuousWarehouse({self._name}, {self.height}x{self.width}, rays={self.num_rays}, "
+                f"obstacles={self.num_obstacles})")
+
+    # ------------------------------------------------------------ draws
+    def reset_draws(self, key: jax.Array, params: ContinuousParams) -> ResetDraws:
+        """A reset's randomness: item, obstacle cells and first waypoints, and the randomized start."""
+        k_item, k_cells, k_way, k_gain, k_offset, k_theta, k_lidar = jax.random.split(key, 7)
+        item_index = jax.random.randint(k_item, (), 0, params.num_items)
+        if self.num_obstacles:
+            weights = params.obstacle_cells.reshape(-1).astype(jnp.float32)
+            flat = jax.random.choice(k_cells, weights.shape[0], (self.num_obstacles,), replace=False,
+                                     p=weights / weights.sum())
+            cells = jnp.stack([flat // self.width, flat % self.width], axis=-1).astype(jnp.int32)
+        else:
+            cells = jnp.zeros((0, 2), jnp.int32)
+        waypoint_u = jax.random.uniform(k_way, (self.num_obstacles,))
+        gains = jax.random.uniform(k_gain, (2,), minval=params.gain_low, maxval=params.gain_high)
+        radius_u, angle_u = jax.random.uniform(k_offset, (2,))
+        angle = (2.0 * PI) * angle_u
+        offset = (params.start_jitter * jnp.sqrt(radius_u)) * jnp.stack([jnp.cos(angle), jnp.sin(angle)])
+        theta = jax.random.uniform(k_theta, (), minval=-PI, maxval=PI)
+        on = params.randomize
+        reading = self.step_draws(k_lidar, params)
+        return ResetDraws(item_index=item_index, obstacle_cells=cells, waypoint_u=waypoint_u,
+                          gains=jnp.where(on, gains, 1.0), start_offset=jnp.where(on, offset, 0.0),
+                          theta=jnp.where(on, theta, 0.0), lidar_noise=reading.lidar_noise,
+                          lidar_drop=reading.lidar_drop)
+
+    def step_draws(self, key: jax.Array, params: ContinuousParams) -> StepDraws:
+        """A step's randomness: actuation and lidar noise, dropout, the waypoint draws."""
+        k_noise, k_way, k_lidar, k_drop = jax.random.split(key, 4)
+        on = params.randomize
+        scale = params.actuation_noise * jnp.stack([params.v_max, params.w_max])
+        noise = jax.random.normal(k_noise, (2,)) * scale
+        lidar_noise = jax.random.normal(k_lidar, (self.num_rays,)) * params.lidar_noise
+        drop = jax.random.uniform(k_drop, (self.num_rays,)) < params.lidar_dropout
+        return StepDraws(noise=jnp.where(on, noise, 0.0), waypoint_u=jax.random.uniform(k_way, (self.num_obstacles,)),
+                         lidar_noise=jnp.where(on, lidar_noise, 0.0), lidar_drop=on & drop)
+
+    # ------------------------------------------------------------ the MDP
+    def reset_env(self, key: jax.Array, params: ContinuousParams) -> tuple[jax.Array, ContinuousState]:
+        return reset_core(self.reset_draws(key, params), params)
+
+    def transition(self, key: jax.Array, state: ContinuousState, action: Any, params: ContinuousParams):
+        self.check_action(action)
+        return transition_core(state, action, self.step_draws(key, params), params)
+
+    def get_obs(self, state: ContinuousState, params: ContinuousParams | None = None, key=None) -> jax.Array:
+        raise NotImplementedError("the observation holds the applied command: read it from reset or step")
+
+    def is_terminated(self, state: ContinuousState, params: ContinuousParams) -> jax.Array:
+        return state.carrying & (jnp.linalg.norm(state.pos - params.goal) <= params.reach_radius)
+
+    # ------------------------------------------------------------ checks and spaces
+    def check_action(self, action: Any) -> None:
+        """A concrete action of the wrong shape or kind is refused; NaN is read as 0 and flagged (the contract)."""
+        if isinstance(action, jax.core.Tracer):
+            if action.shape[-1:] != (2,):
+                raise ValueError(f"a continuous warehouse action has shape (2,) (speed, turn), got {action.shape}")
+            return
+        array = np.asarray(action)
+        if array.shape != (2,):
+            raise ValueError(f"a continuous warehouse action has shape (2,) (speed, turn), got shape {array.shape}")
+        if array.dtype.kind not in "fiu":
+            raise ValueError(f"a continuous warehouse action is two floats in [-1, 1], got dtype {array.dtype}")
+
+    def action_space(self, params: ContinuousParams | None = None) -> spaces.Box:
+        return spaces.Box(low=-1.0, high=1.0, shape=(2,), dtype=jnp.float32)
+
+    def observation_space(self, params: ContinuousParams | None = None) -> spaces.Box:
+        return spaces.Box(low=-1.0, high=1.0, shape=(self.obs_size,), dtype=jnp.float32)
+
+    def state_space(self, params: ContinuousParams | None = None) -> spaces.Dict:
+        raise NotImplementedError("the continuous warehouse has no state space")

@@ -1,0 +1,90 @@
+"""Building a continuous warehouse from any layout of SPEC.md (:func:`make_continuous`).
+
+The study's maps take the contract's episode limits (8x8: 300 steps, 12x12: 500); any other layout
+names its own. Bad settings are refused here, before anything compiles, with the setting named.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from wrl_jax.envs.continuous.env import ContinuousWarehouse
+from wrl_jax.envs.continuous.types import ContinuousParams
+from wrl_jax.envs.warehouse import maps
+from wrl_jax.envs.warehouse.layout import Layout, parse
+
+STUDY_MAX_STEPS = {maps.WAREHOUSE_8X8: 300, maps.WAREHOUSE_12X12: 500}
+"""The contract's episode limits on the study's two maps."""
+
+DEFAULTS: dict[str, Any] = {
+    "dt": 0.2, "v_max": 1.0, "w_max": 2.0, "robot_radius": 0.3, "reach_radius": 0.35, "lidar_range": 4.0,
+    "step_penalty": -0.5, "collision_penalty": -10.0, "shaping_coef": 2.0, "pickup_reward": 50.0,
+    "delivery_reward": 200.0, "obstacle_radius": 0.3, "obstacle_speed": 0.5, "randomize": False,
+    "gain_low": 0.8, "gain_high": 1.2, "actuation_noise": 0.05, "lidar_noise": 0.02, "lidar_dropout": 0.02,
+    "start_jitter": 0.2,
+}
+"""CONTINUOUS_SPEC.md's parameters (every one an override of :func:`make_continuous`)."""
+
+POSITIVE = ("dt", "v_max", "w_max", "robot_radius", "reach_radius", "lidar_range", "obstacle_radius")
+
+
+def obstacle_cells(layout: Layout) -> np.ndarray:
+    """``(H, W)`` bool: where a moving obstacle may start (free, Manhattan >= 3 from the start, not the goal)."""
+    rows, cols = np.indices(layout.shelves.shape)
+    far = np.abs(rows - layout.start[0]) + np.abs(cols - layout.start[1]) >= 3
+    not_goal = (rows != layout.goal[0]) | (cols != layout.goal[1])
+    return ~np.asarray(layout.shelves, bool) & far & not_goal
+
+
+def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_rays: int = 32,
+                    num_obstacles: int = 0, name: str = "Continuous-Warehouse",
+                    **overrides: Any) -> tuple[ContinuousWarehouse, ContinuousParams]:
+    """``(env, params)`` for ``layout`` (a :class:`Layout` or an ASCII map of SPEC.md).
+
+    Raises:
+        ValueError: naming the problem: an unknown override, a non-positive length or speed, a
+            ``max_steps`` missing for a layout other than the study's, too few cells for the
+            obstacles, or a gain range that is not ``0 < low <= high``.
+    """
+    text = layout if isinstance(layout, str) else None
+    layout = parse(layout) if isinstance(layout, str) else layout
+    unknown = sorted(set(overrides) - set(DEFAULTS))
+    if unknown:
+        raise ValueError(f"unknown continuous warehouse setting(s) {unknown}; known: {sorted(DEFAULTS)}")
+    settings = {**DEFAULTS, **overrides}
+    if max_steps is None:
+        if text is None or text not in STUDY_MAX_STEPS:
+            raise ValueError("max_steps is needed for a layout other than the study's 8x8 and 12x12 maps")
+        max_steps = STUDY_MAX_STEPS[text]
+    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    for field in POSITIVE:
+        if not float(settings[field]) > 0:
+            raise ValueError(f"{field} must be positive, got {settings[field]!r}")
+    if not 0 < float(settings["gain_low"]) <= float(settings["gain_high"]):
+        raise ValueError(f"the gain range must be 0 < gain_low <= gain_high, got "
+                         f"{settings['gain_low']!r}..{settings['gain_high']!r}")
+    if not float(settings["robot_radius"]) < 0.5:
+        raise ValueError(f"robot_radius {settings['robot_radius']!r} does not fit a 1 m cell (at most 0.5)")
+    if num_rays < 1 or num_obstacles < 0:
+        raise ValueError(f"num_rays must be >= 1 and num_obstacles >= 0, got {num_rays} and {num_obstacles}")
+    eligible = obstacle_cells(layout)
+    if int(eligible.sum()) < num_obstacles:
+        raise ValueError(f"the layout has {int(eligible.sum())} cells where a moving obstacle may start "
+                         f"(free, 3 or more from the start, not the goal), fewer than num_obstacles={num_obstacles}")
+
+    def point(cell) -> np.ndarray:
+        return np.array([cell[1] + 0.5, cell[0] + 0.5], np.float32)
+
+    items = np.stack([point(cell) for cell in layout.items])
+    f32 = {k: jnp.asarray(v, jnp.float32) for k, v in settings.items() if k != "randomize"}
+    params = ContinuousParams(
+        **f32, max_steps=jnp.asarray(max_steps, jnp.int32), randomize=jnp.asarray(bool(settings["randomize"])),
+        shelves=jnp.asarray(layout.shelves, bool), start=jnp.asarray(point(layout.start)),
+        start_cell=jnp.asarray(layout.start, jnp.int32), goal=jnp.asarray(point(layout.goal)),
+        goal_cell=jnp.asarray(layout.goal, jnp.int32), items=jnp.asarray(items),
+        num_items=jnp.asarray(len(layout.items), jnp.int32), obstacle_cells=jnp.asarray(eligible))
+    return ContinuousWarehouse(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name), params
