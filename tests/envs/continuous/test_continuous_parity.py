@@ -21,6 +21,7 @@ import pytest
 
 from wrl_jax.envs.continuous import reference as ref
 from wrl_jax.envs.continuous import reference_geometry as geo
+from wrl_jax.envs.continuous import reference_types as rtypes
 from wrl_jax.envs.continuous.dynamics import reset_core, transition_core
 from wrl_jax.envs.continuous.geometry import hits_shelf, hits_wall
 from wrl_jax.envs.continuous.registration import make_continuous
@@ -83,18 +84,18 @@ def record(env, params, key, steps):
     return jax.lax.scan(one, state, jax.random.split(key, steps))[1]
 
 
-def reference_params(env, params) -> ref.ContinuousParams:
+def reference_params(env, params) -> rtypes.ContinuousParams:
     p = {name: np.asarray(getattr(params, name)).item() for name in (
         "dt", "v_max", "w_max", "robot_radius", "reach_radius", "lidar_range", "step_penalty", "collision_penalty",
         "shaping_coef", "pickup_reward", "delivery_reward", "max_steps", "obstacle_radius", "obstacle_speed",
         "actuation_noise", "lidar_noise", "lidar_dropout", "start_jitter", "randomize")}
-    return ref.ContinuousParams(**p, gain_range=(float(params.gain_low), float(params.gain_high)),
+    return rtypes.ContinuousParams(**p, gain_range=(float(params.gain_low), float(params.gain_high)),
                                 num_rays=env.num_rays, num_obstacles=env.num_obstacles)
 
 
-def reference_state(states, t) -> ref.ContinuousState:
+def reference_state(states, t) -> rtypes.ContinuousState:
     pick = lambda leaf: np.asarray(leaf[t])  # noqa: E731
-    return ref.ContinuousState(pos=pick(states.pos).astype(np.float32), theta=np.float32(pick(states.theta)),
+    return rtypes.ContinuousState(pos=pick(states.pos).astype(np.float32), theta=np.float32(pick(states.theta)),
                                carrying=bool(pick(states.carrying)), item=pick(states.item).astype(np.float32),
                                time=int(pick(states.time)), obstacle_pos=pick(states.obstacle_pos).astype(np.float32),
                                obstacle_waypoint=pick(states.obstacle_waypoint).astype(np.float32),
@@ -102,12 +103,12 @@ def reference_state(states, t) -> ref.ContinuousState:
                                gains=pick(states.gains).astype(np.float32))
 
 
-def reference_draws(draws, t) -> ref.StepDraws:
-    return ref.StepDraws(noise=draws.noise[t], waypoint_u=draws.waypoint_u[t], lidar_noise=draws.lidar_noise[t],
+def reference_draws(draws, t) -> rtypes.StepDraws:
+    return rtypes.StepDraws(noise=draws.noise[t], waypoint_u=draws.waypoint_u[t], lidar_noise=draws.lidar_noise[t],
                          lidar_drop=draws.lidar_drop[t])
 
 
-def margins(state: ref.ContinuousState, action, layout, params, draws) -> list[float]:
+def margins(state: rtypes.ContinuousState, action, layout, params, draws) -> list[float]:
     """How far (metres) each decision of the transition lies from its threshold (small: a tie)."""
     a, _ = geo.read_action(action)
     v = np.float32(np.float32(np.float32(params.v_max) * a[0]) * state.gains[0]) + np.float32(draws.noise[0])
@@ -210,7 +211,7 @@ CASES = {
 def test_transitions_match_the_reference(case):
     text, settings = CASES[case]
     env, params = make_continuous(text, **settings)
-    layout = ref.ContinuousLayout.from_text(text)
+    layout = rtypes.ContinuousLayout.from_text(text)
     rp = reference_params(env, params)
     rec = jax.jit(record, static_argnums=(0, 3))(env, params, jax.random.key(sorted(CASES).index(case)), STEPS)
     rec = jax.tree.map(np.asarray, rec)

@@ -5,12 +5,9 @@ each obstacle disc: a different method from the JAX grid traversal, on purpose.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
-if TYPE_CHECKING:
-    from wrl_jax.envs.continuous.reference import ContinuousLayout, ContinuousParams
+from wrl_jax.envs.continuous.reference_types import ContinuousLayout, ContinuousParams
 
 F32 = np.float32
 PI = F32(np.pi)
