@@ -33,6 +33,7 @@ import wrl_jax
 from wrl_jax.core.registry import GYMNAX_PREFIX
 
 NAMES = wrl_jax.registered_names()
+wrl_jax.register_with_gymnax()  # gymnax was imported after wrl_jax (by conftest): the documented call
 BATCH = 4
 EXTRA_STEPS = 3
 """The rollout runs ``max_steps_in_episode + EXTRA_STEPS`` steps, so every environment passes the time limit."""
@@ -166,8 +167,10 @@ def test_reloading_the_registrations_does_not_raise():
 def test_spaces_callable_with_and_without_params(case):
     _, env, params, _ = case
     action_space, obs_space = env.action_space(), env.observation_space()
-    assert isinstance(action_space, spaces.Discrete)
-    assert action_space.n == env.num_actions
+    if isinstance(action_space, spaces.Box):  # a continuous family: num_actions is the action's length
+        assert action_space.shape == (env.num_actions,)
+    else:
+        assert isinstance(action_space, spaces.Discrete) and action_space.n == env.num_actions
     assert isinstance(obs_space, spaces.Space)
     assert repr(env.action_space(params)) == repr(action_space)
     assert repr(env.observation_space(params)) == repr(obs_space)
@@ -183,13 +186,13 @@ def test_spaces_match_the_real_arrays(case):
     for key in ("obs", "final_obs", "final_observation"):
         assert trace[key].shape == (BATCH, length, *obs_space.shape), key
         assert trace[key].dtype == np.dtype(obs_space.dtype), key
-    action_shape = () if robots is None else (robots,)
+    action_shape = tuple(action_space.shape) if robots is None else (robots,)
     assert trace["action"].shape == (BATCH, length, *action_shape)
     assert trace["action"].dtype == np.dtype(action_space.dtype)
     assert trace["terminated"].dtype == np.bool_ and trace["truncated"].dtype == np.bool_
     assert np.issubdtype(trace["reward"].dtype, np.floating)
     # A single robot gets a scalar reward; a fleet gets a scalar or one per robot.
-    assert trace["reward"].shape[2:] in {(), action_shape}
+    assert trace["reward"].shape[2:] in {(), () if robots is None else action_shape}
 
 
 def test_observations_lie_in_the_space(case):

@@ -51,8 +51,15 @@ class Algorithm(abc.ABC, Generic[RunnerT]):
 
     name: ClassVar[str]
 
+    action_kind: str = "discrete"
+    """The actions it emits: ``"discrete"`` (an index per agent) or ``"continuous"`` (a vector in a box)."""
+
     def __init__(self, config: Any, env: Environment, env_params: Any):
         config.validate()  # every algorithm, the same way: a ValueError naming the field, before anything compiles
+        continuous = hasattr(env.action_space(env_params), "low")  # a Box; a Discrete has no bounds
+        if continuous != (self.action_kind == "continuous"):
+            raise ValueError(f"{type(self).__name__} acts in a {self.action_kind} action space; {env.name} takes "
+                             f"{'continuous' if continuous else 'discrete'} actions")
         self.config = config
         self.env = env
         self.env_params = env_params

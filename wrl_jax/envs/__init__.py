@@ -19,3 +19,9 @@ register("Warehouse-12x12-v0", "wrl_jax.envs.warehouse.registration:make_named",
 register("Fleet-12x12-v0", "wrl_jax.envs.fleet.registration:make_named", family="fleet", map_name="12x12")
 register("Fleet-32x32-v0", "wrl_jax.envs.fleet.registration:make_named", family="fleet", map_name="32x32")
 register("Procedural-Warehouse-v0", "wrl_jax.envs.procedural.registration:make_procedural", family="procedural")
+register("Continuous-Warehouse-8x8-v0", "wrl_jax.envs.continuous.registration:make_named", family="continuous",
+         map_name="8x8")
+register("Continuous-Warehouse-12x12-v0", "wrl_jax.envs.continuous.registration:make_named", family="continuous",
+         map_name="12x12")
+register("Continuous-Warehouse-12x12-Dynamic-v0", "wrl_jax.envs.continuous.registration:make_named",
+         family="continuous", map_name="12x12", dynamic=True)

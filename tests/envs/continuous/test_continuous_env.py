@@ -66,3 +66,18 @@ def test_same_key_same_bits_other_keys_differ_and_obstacles_move(dynamic):
     assert not np.array_equal(first[2], other[2])
     travelled = np.abs(np.diff(first[2], axis=0)).sum()
     assert travelled > 4 * 50 * 0.5 * 0.2 * 0.5  # four obstacles at 0.1 m a step, moving most of the time
+
+
+def test_registered_names_build_and_the_discrete_learners_refuse_them_clearly():
+    import wrl_jax
+    from wrl_jax.agents.dqn import DQN
+    from wrl_jax.agents.dqn_config import DQNConfig
+    from wrl_jax.agents.ppo import PPO
+    from wrl_jax.agents.ppo_config import PPOConfig
+
+    env, params = wrl_jax.make("Continuous-Warehouse-12x12-Dynamic-v0")
+    assert (env.num_obstacles, int(params.max_steps), env.name) == (4, 500, "Continuous-Warehouse-12x12-Dynamic-v0")
+    assert wrl_jax.make("Continuous-Warehouse-8x8-v0")[0].num_obstacles == 0
+    for algorithm, config in ((PPO, PPOConfig()), (DQN, DQNConfig())):
+        with pytest.raises(ValueError, match="acts in a discrete action space; .* takes continuous actions"):
+            algorithm(config, env, params)

@@ -88,3 +88,15 @@ def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_r
         goal_cell=jnp.asarray(layout.goal, jnp.int32), items=jnp.asarray(items),
         num_items=jnp.asarray(len(layout.items), jnp.int32), obstacle_cells=jnp.asarray(eligible))
     return ContinuousWarehouse(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name), params
+
+
+NAMED_MAPS = {"8x8": maps.WAREHOUSE_8X8, "12x12": maps.WAREHOUSE_12X12}
+DYNAMIC_OBSTACLES = 4
+"""Moving obstacles of the ``-Dynamic`` variants."""
+
+
+def make_named(map_name: str, dynamic: bool = False, **overrides: Any) -> tuple[ContinuousWarehouse, ContinuousParams]:
+    """The factory of ``Continuous-Warehouse-<map>[-Dynamic]-v0``: the study's map, its limit, 0 or 4 obstacles."""
+    overrides.setdefault("num_obstacles", DYNAMIC_OBSTACLES if dynamic else 0)
+    name = f"Continuous-Warehouse-{map_name}{'-Dynamic' if dynamic else ''}-v0"
+    return make_continuous(NAMED_MAPS[map_name], name=name, **overrides)
