@@ -28,6 +28,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from wrl_jax.core.environment import Environment
+from wrl_jax.core.gymnax_base import spaces
 
 RunnerT = TypeVar("RunnerT")
 
@@ -56,7 +57,7 @@ class Algorithm(abc.ABC, Generic[RunnerT]):
 
     def __init__(self, config: Any, env: Environment, env_params: Any):
         config.validate()  # every algorithm, the same way: a ValueError naming the field, before anything compiles
-        continuous = hasattr(env.action_space(env_params), "low")  # a Box; a Discrete has no bounds
+        continuous = isinstance(env.action_space(env_params), spaces.Box)
         if continuous != (self.action_kind == "continuous"):
             raise ValueError(f"{type(self).__name__} acts in a {self.action_kind} action space; {env.name} takes "
                              f"{'continuous' if continuous else 'discrete'} actions")
@@ -121,7 +122,7 @@ class Algorithm(abc.ABC, Generic[RunnerT]):
 class AlgoSpec:
     """How the shared CLI (``wrl_jax.cli``) and ``python -m wrl_jax.evaluate`` find an algorithm.
 
-    Each algorithm module defines one as ``SPEC``; ``wrl_jax.cli.ALGORITHM_MODULES``
+    Each algorithm module defines one as ``SPEC``; ``wrl_jax.agents.ALGORITHM_MODULES``
     maps the algorithm's name to that module.
 
     Attributes:

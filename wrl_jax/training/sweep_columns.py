@@ -66,7 +66,10 @@ def training_values(columns: Any, train_row: dict[str, Any]) -> dict[str, Any]:
 
 
 def point_row(columns: Any, head: dict[str, Any], rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """A point's row: mean and 95 % half-width over seeds of each metric, convergence, solved counts."""
+    """A point's row: mean and 95 % half-width over seeds of each metric, convergence, solved counts.
+
+    ``first_optimal_step`` is the first step at which the family's solved criterion held (the
+    warehouse's: every item optimal); the column keeps that name in results files already written."""
     aggregate = dict(head)
     keys = [m.key for m in columns.metrics if m.kind != "solved" and m.aggregate]
     keys += [train_column(m) for m in columns.train if m.aggregate]

@@ -11,7 +11,8 @@ import gymnasium as gym
 from wrl_jax.core.registry import registered_names
 
 GYM_NAMESPACE = "wrl_jax"
-_ADAPTERS = "wrl_jax.wrappers.gymnasium"
+SINGLE_ENTRY = "wrl_jax.wrappers.gymnasium:WarehouseGymEnv"
+VECTOR_ENTRY = "wrl_jax.wrappers.gymnasium_vector:WarehouseVectorEnv"
 
 
 def gym_id(name: str) -> str:
@@ -33,8 +34,8 @@ def register_gymnasium_envs() -> list[str]:
         if env_id not in gym.registry:
             gym.register(
                 id=env_id,
-                entry_point=f"{_ADAPTERS}:WarehouseGymEnv",
-                vector_entry_point=f"{_ADAPTERS}_vector:WarehouseVectorEnv",
+                entry_point=SINGLE_ENTRY,
+                vector_entry_point=VECTOR_ENTRY,
                 kwargs={"name": name},
                 max_episode_steps=None,
                 nondeterministic=False,

@@ -81,3 +81,18 @@ def test_registered_names_build_and_the_discrete_learners_refuse_them_clearly():
     for algorithm, config in ((PPO, PPOConfig()), (DQN, DQNConfig())):
         with pytest.raises(ValueError, match="acts in a discrete action space; .* takes continuous actions"):
             algorithm(config, env, params)
+
+
+def test_the_lidar_reads_closed_squares_at_corners_and_along_grid_lines():
+    """A ray along a grid line touches the squares on both sides; one through a corner, all three cells there.
+    (Only angle 0 runs exactly along a line in float32: cos(pi/2) and sin(pi) are not 0 there.)"""
+    from wrl_jax.envs.continuous.geometry import ray_grid
+
+    shelves = jnp.zeros((8, 8), bool).at[2, 3].set(True)  # the square x in [3, 4], y in [2, 3]
+    along_bottom_edge = ray_grid(jnp.array([0.5, 3.0]), jnp.array([0.0]), shelves)  # y = 3: the shelf's top edge
+    along_top_edge = ray_grid(jnp.array([0.5, 2.0]), jnp.array([0.0]), shelves)
+    corner = ray_grid(jnp.array([1.0, 0.0 + 1e-7]), jnp.array([np.pi / 4]), jnp.zeros((8, 8), bool).at[1, 2].set(True))
+    np.testing.assert_allclose([float(along_bottom_edge[0]), float(along_top_edge[0])], [2.5, 2.5], atol=1e-6)
+    np.testing.assert_allclose(float(corner[0]), np.sqrt(2.0), atol=1e-5)  # touches (1, 2)'s corner at (2, 1)
+    away = ray_grid(jnp.array([0.5, 3.5]), jnp.array([0.0]), shelves)  # a row clear of the shelf: the wall at 7.5
+    np.testing.assert_allclose(float(away[0]), 7.5, atol=1e-6)

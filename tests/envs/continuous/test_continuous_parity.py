@@ -22,6 +22,7 @@ import pytest
 from wrl_jax.envs.continuous import reference as ref
 from wrl_jax.envs.continuous import reference_geometry as geo
 from wrl_jax.envs.continuous import reference_types as rtypes
+from wrl_jax.envs.continuous.dynamics import FLAGS as EVENTS
 from wrl_jax.envs.continuous.dynamics import reset_core, transition_core
 from wrl_jax.envs.continuous.geometry import hits_shelf, hits_wall
 from wrl_jax.envs.continuous.registration import make_continuous
@@ -32,7 +33,6 @@ STEPS = int(os.environ.get("WRL_CONTINUOUS_PARITY_STEPS", "400"))
 TIE = 1e-5  # metres: a decision this close to its threshold may go either way
 STATE_TOL = 1e-5
 LIDAR_TOL = 1e-4
-EVENTS = ("collision", "hit_shelf", "hit_wall", "hit_obstacle", "picked_up", "delivered", "invalid_action")
 
 
 def controller(key, state, params):
@@ -80,7 +80,7 @@ def record(env, params, key, steps):
         return carry, (state, action, draws, obs, nxt, reward, terminated, truncated, info, done, reset_draws,
                        reset_obs, fresh)
 
-    first_obs, state = env.reset(jax.random.fold_in(key, 1), params)
+    _, state = env.reset(jax.random.fold_in(key, 1), params)
     return jax.lax.scan(one, state, jax.random.split(key, steps))[1]
 
 

@@ -12,10 +12,14 @@ import pytest
 
 from wrl_jax.envs.continuous import reference as ref
 from wrl_jax.envs.continuous.reference import ReferenceEnv, next_waypoint_cell, reset, step
-from wrl_jax.envs.continuous.reference_types import (
-    ContinuousLayout, ContinuousParams, StepDraws, study_max_steps)
 from wrl_jax.envs.continuous.reference_geometry import (
-    collision_flags, lidar_distances, lidar_values, ray_distance, wrap)
+    collision_flags,
+    lidar_distances,
+    lidar_values,
+    ray_distance,
+    wrap,
+)
+from wrl_jax.envs.continuous.reference_types import ContinuousLayout, ContinuousParams, StepDraws, study_max_steps
 from wrl_jax.envs.warehouse.maps import WAREHOUSE_8X8, WAREHOUSE_12X12
 
 F = np.float32

@@ -1,6 +1,6 @@
 """The warehouse step's unrolled reset word is ``jax.random.bits`` bit for bit (issue 12's throughput work).
 
-:func:`wrl_jax.envs.warehouse.env.random_word` replaces JAX's looped CPU
+:func:`wrl_jax.core.random.random_word` replaces JAX's looped CPU
 lowering of threefry by the same arithmetic written out, so it must give the
 very same words for every key, and fall back to ``jax.random.bits`` for keys
 it does not handle; the step built on it must equal the step built on
@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 import wrl_jax
-from wrl_jax.envs.warehouse.env import item_from_word, random_word, threefry_word
+from wrl_jax.core.random import random_word
+from wrl_jax.envs.warehouse.env import item_from_word, threefry_word
 
 
 def bits(key):

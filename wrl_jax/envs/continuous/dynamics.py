@@ -34,11 +34,10 @@ def cell_centre(cell: jax.Array) -> jax.Array:
     return jnp.stack([cell[..., 1].astype(jnp.float32) + 0.5, cell[..., 0].astype(jnp.float32) + 0.5], axis=-1)
 
 
-def next_waypoint(cell: jax.Array, came_from: jax.Array, u: jax.Array, shelves: jax.Array,
-                  exclude: jax.Array) -> jax.Array:
+def next_waypoint(cell: jax.Array, came_from: jax.Array, u: jax.Array, shelves: jax.Array) -> jax.Array:
     """The cell (row, col) an obstacle standing on ``cell`` heads to next (see the module docstring).
 
-    ``exclude``: whether ``came_from`` is left out (False for the first leg).
+    For the first leg ``came_from`` is ``cell`` itself, which is no neighbour: nothing is left out.
     """
     height, width = shelves.shape
     candidates = cell[None, :] + jnp.asarray(NEIGHBOURS, jnp.int32)
@@ -46,7 +45,7 @@ def next_waypoint(cell: jax.Array, came_from: jax.Array, u: jax.Array, shelves: 
     inside = (rows >= 0) & (rows < height) & (cols >= 0) & (cols < width)
     free = inside & ~shelves[jnp.clip(rows, 0, height - 1), jnp.clip(cols, 0, width - 1)]
     back = jnp.all(candidates == came_from[None, :], axis=1)
-    eligible = free & ~(exclude & back)
+    eligible = free & ~back
     count = eligible.sum()
     index = jnp.minimum(jnp.floor(u * count.astype(jnp.float32)).astype(jnp.int32), count - 1)
     chosen = jnp.argmax(eligible & (jnp.cumsum(eligible) - 1 == index))
@@ -80,8 +79,7 @@ def reset_core(draws: ResetDraws, params: ContinuousParams) -> tuple[jax.Array, 
     item = params.items[draws.item_index]
     cells = draws.obstacle_cells.astype(jnp.int32)
     num_obstacles = cells.shape[0]
-    waypoints = jax.vmap(next_waypoint, in_axes=(0, 0, 0, None, None))(
-        cells, cells, draws.waypoint_u, params.shelves, jnp.bool_(False))
+    waypoints = jax.vmap(next_waypoint, in_axes=(0, 0, 0, None))(cells, cells, draws.waypoint_u, params.shelves)
     state = ContinuousState(
         pos=params.start + draws.start_offset,
         theta=wrap(draws.theta.astype(jnp.float32)),
@@ -112,7 +110,7 @@ def move_obstacles(state: ContinuousState, robot: jax.Array, draws: StepDraws, p
         moved = jnp.where(lands, waypoint, pos + stride * (d / jnp.where(lands, 1.0, distance)))
         waits = norm(moved - robot) < gap
         here = jnp.stack([jnp.floor(waypoint[1]), jnp.floor(waypoint[0])]).astype(jnp.int32)
-        after = next_waypoint(here, came_from, u, params.shelves, jnp.bool_(True))
+        after = next_waypoint(here, came_from, u, params.shelves)
         landed = lands & ~waits
         return (jnp.where(waits, pos, moved), jnp.where(landed, cell_centre(after), waypoint),
                 jnp.where(landed, here, came_from), waits, landed)

@@ -19,7 +19,7 @@ import numpy as np
 from wrl_jax.core.environment import Environment
 from wrl_jax.core.gymnax_base import spaces
 from wrl_jax.envs.continuous.dynamics import OBS_SCALARS, reset_core, transition_core
-from wrl_jax.envs.continuous.geometry import PI
+from wrl_jax.envs.continuous.geometry import PI, norm
 from wrl_jax.envs.continuous.types import ContinuousParams, ContinuousState, ResetDraws, StepDraws
 
 
@@ -110,7 +110,7 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
         raise NotImplementedError("the observation holds the applied command: read it from reset or step")
 
     def is_terminated(self, state: ContinuousState, params: ContinuousParams) -> jax.Array:
-        return state.carrying & (jnp.linalg.norm(state.pos - params.goal) <= params.reach_radius)
+        return state.carrying & (norm(state.pos - params.goal) <= params.reach_radius)
 
     # ------------------------------------------------------------ checks and spaces
     def check_action(self, action: Any) -> None:
@@ -129,7 +129,10 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
         return spaces.Box(low=-1.0, high=1.0, shape=(2,), dtype=jnp.float32)
 
     def observation_space(self, params: ContinuousParams | None = None) -> spaces.Box:
-        return spaces.Box(low=-1.0, high=1.0, shape=(self.obs_size,), dtype=jnp.float32)
+        """Every value in [-1, 1] but the applied command (4, 5): randomized gains and noise take it past 1."""
+        high = np.ones(self.obs_size, np.float32)
+        high[4:6] = np.inf
+        return spaces.Box(low=-high, high=high, shape=(self.obs_size,), dtype=jnp.float32)
 
     def state_space(self, params: ContinuousParams | None = None) -> spaces.Dict:
         raise NotImplementedError("the continuous warehouse has no state space")

@@ -5,7 +5,8 @@ The lidar walks each ray through the grid cell by cell (Amanatides and Woo's tra
 fixed ``H + W`` iterations under ``jit``, every ray at once, so a ray costs ``H + W`` table lookups
 and its distance is the exact parameter at which it enters the first shelf square (or leaves the
 map), not a marched approximation. Squares are closed: where a ray crosses a grid corner exactly,
-the three cells that meet there are all tested. Obstacles are discs, met by the analytic
+the three cells that meet there are all tested, and a ray running along a grid line tests the
+cells on both sides of it. Obstacles are discs, met by the analytic
 ray-circle intersection. Every quantity is float32, one rounding per written operation, in the
 order CONTINUOUS_SPEC.md writes it.
 """
@@ -74,6 +75,10 @@ def ray_grid(origin: jax.Array, angles: jax.Array, shelves: jax.Array) -> jax.Ar
     wall_x = jnp.where(dx > 0, (width - x) / dx, jnp.where(dx < 0, (0.0 - x) / dx, inf))
     wall_y = jnp.where(dy > 0, (height - y) / dy, jnp.where(dy < 0, (0.0 - y) / dy, inf))
     wall = jnp.minimum(wall_x, wall_y)
+    # A ray along a grid line touches the closed squares on both sides of it: the row (column) below
+    # is tested too, where the traversal alone would only walk the row (column) the origin is in.
+    along_row = (dy == 0) & (y == jnp.floor(y))
+    along_col = (dx == 0) & (x == jnp.floor(x))
 
     def shelf_at(r, c):
         inside = (r >= 0) & (r < height) & (c >= 0) & (c < width)
@@ -87,7 +92,8 @@ def ray_grid(origin: jax.Array, angles: jax.Array, shelves: jax.Array) -> jax.Ar
         new_col = col + jnp.where(across_x, step_col, 0)
         new_row = row + jnp.where(across_y, step_row, 0)
         shelf = ((across_x & shelf_at(row, new_col)) | (across_y & shelf_at(new_row, col))
-                 | shelf_at(new_row, new_col))
+                 | shelf_at(new_row, new_col) | (across_x & along_row & shelf_at(row - 1, new_col))
+                 | (across_y & along_col & shelf_at(new_row, col - 1)))
         found = ~done & shelf & (t <= wall)
         hit = jnp.where(found, t, hit)
         left = (new_col < 0) | (new_col >= width) | (new_row < 0) | (new_row >= height)

@@ -19,6 +19,15 @@ from wrl_jax.envs.warehouse.layout import Layout, parse
 STUDY_MAX_STEPS = {maps.WAREHOUSE_8X8: 300, maps.WAREHOUSE_12X12: 500}
 """The contract's episode limits on the study's two maps."""
 
+
+def study_max_steps(layout: Layout) -> int | None:
+    """The contract's limit when ``layout`` is one of the study's maps (compared as grids, not text)."""
+    for text, steps in STUDY_MAX_STEPS.items():
+        study = parse(text)
+        if all(np.array_equal(getattr(study, f), getattr(layout, f)) for f in ("shelves", "start", "goal", "items")):
+            return steps
+    return None
+
 DEFAULTS: dict[str, Any] = {
     "dt": 0.2, "v_max": 1.0, "w_max": 2.0, "robot_radius": 0.3, "reach_radius": 0.35, "lidar_range": 4.0,
     "step_penalty": -0.5, "collision_penalty": -10.0, "shaping_coef": 2.0, "pickup_reward": 50.0,
@@ -49,16 +58,15 @@ def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_r
             ``max_steps`` missing for a layout other than the study's, too few cells for the
             obstacles, or a gain range that is not ``0 < low <= high``.
     """
-    text = layout if isinstance(layout, str) else None
     layout = parse(layout) if isinstance(layout, str) else layout
     unknown = sorted(set(overrides) - set(DEFAULTS))
     if unknown:
         raise ValueError(f"unknown continuous warehouse setting(s) {unknown}; known: {sorted(DEFAULTS)}")
     settings = {**DEFAULTS, **overrides}
     if max_steps is None:
-        if text is None or text not in STUDY_MAX_STEPS:
+        max_steps = study_max_steps(layout)
+        if max_steps is None:
             raise ValueError("max_steps is needed for a layout other than the study's 8x8 and 12x12 maps")
-        max_steps = STUDY_MAX_STEPS[text]
     if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
         raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
     for field in POSITIVE:
@@ -69,6 +77,9 @@ def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_r
                          f"{settings['gain_low']!r}..{settings['gain_high']!r}")
     if not float(settings["robot_radius"]) < 0.5:
         raise ValueError(f"robot_radius {settings['robot_radius']!r} does not fit a 1 m cell (at most 0.5)")
+    if not 0 <= float(settings["start_jitter"]) <= 0.5 - float(settings["robot_radius"]):
+        raise ValueError(f"start_jitter must lie in [0, 0.5 - robot_radius] so that every randomized start is "
+                         f"collision-free in the start cell, got {settings['start_jitter']!r}")
     if num_rays < 1 or num_obstacles < 0:
         raise ValueError(f"num_rays must be >= 1 and num_obstacles >= 0, got {num_rays} and {num_obstacles}")
     eligible = obstacle_cells(layout)

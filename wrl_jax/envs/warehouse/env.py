@@ -34,7 +34,7 @@ import numpy as np
 
 from wrl_jax.core.environment import Environment
 from wrl_jax.core.gymnax_base import spaces
-from wrl_jax.core.random import random_word, threefry2x32  # noqa: F401 (random_word re-exported)
+from wrl_jax.core.random import random_word, threefry2x32
 from wrl_jax.envs.warehouse.layout import MOVES, Layout
 from wrl_jax.envs.warehouse.types import REWARD_DEFAULTS, EnvParams, EnvState
 
