@@ -96,3 +96,23 @@ def test_the_lidar_reads_closed_squares_at_corners_and_along_grid_lines():
     np.testing.assert_allclose(float(corner[0]), np.sqrt(2.0), atol=1e-5)  # touches (1, 2)'s corner at (2, 1)
     away = ray_grid(jnp.array([0.5, 3.5]), jnp.array([0.0]), shelves)  # a row clear of the shelf: the wall at 7.5
     np.testing.assert_allclose(float(away[0]), 7.5, atol=1e-6)
+
+
+def test_randomized_observations_lie_in_the_space():
+    """Randomized gains and noise take the applied command past 1: the space says so, every other value stays in [-1, 1]."""
+    env, params = make_continuous(WAREHOUSE_12X12, num_obstacles=4, randomize=True)
+    space = env.observation_space(params)
+
+    @jax.jit
+    def run(key):
+        obs, state = env.reset(key, params)
+
+        def one(state, k):
+            obs, state, *_ = env.step(k, state, jnp.array([1.0, 1.0]), params)
+            return state, obs
+
+        return obs, jax.lax.scan(one, state, jax.random.split(key, 40))[1]
+
+    first, observations = run(jax.random.key(5))
+    assert bool(space.contains(first)) and bool(jax.vmap(space.contains)(observations).all())
+    assert float(jnp.abs(observations[:, 4:6]).max()) > 1.0  # the gains and noise really pass 1
