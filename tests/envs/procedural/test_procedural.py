@@ -436,19 +436,21 @@ def _walk_beside_the_plain_env(env, params, plain_env, plain_params, actions):
     """``(observations, plain observations, the reset table's row)`` of one walk from slot 0, item 0, in both envs."""
 
     @jax.jit
-    def probe(params, plain_params):
+    def probe(params, plain_params, actions):
         obs, state = env.reset_to(0, 0, params)
         plain_obs, plain_state = plain_env.reset_to(0, 0, plain_params)
-        seen, plain_seen = [obs], [plain_obs]
-        for action in actions:
-            obs, state, *_ = env.step(jax.random.key(0), state, jnp.int32(action), params)
-            plain_obs, plain_state, *_ = plain_env.step(jax.random.key(0), plain_state, jnp.int32(action),
-                                                        plain_params)
-            seen.append(obs)
-            plain_seen.append(plain_obs)
-        return jnp.stack(seen), jnp.stack(plain_seen), params.reset_obs[0, 0]
 
-    return tuple(np.asarray(x) for x in probe(params, plain_params))
+        def one(carry, action):  # a scan: one compiled step, whatever the walk's length
+            state, plain_state = carry
+            obs, state, *_ = env.step(jax.random.key(0), state, action, params)
+            plain_obs, plain_state, *_ = plain_env.step(jax.random.key(0), plain_state, action, plain_params)
+            return (state, plain_state), (obs, plain_obs)
+
+        _, (seen, plain_seen) = jax.lax.scan(one, (state, plain_state), actions)
+        return (jnp.concatenate([obs[None], seen]), jnp.concatenate([plain_obs[None], plain_seen]),
+                params.reset_obs[0, 0])
+
+    return tuple(np.asarray(x) for x in probe(params, plain_params, jnp.asarray(actions, jnp.int32)))
 
 
 def test_last_action_observation_is_the_previous_action_one_hot():
