@@ -12,6 +12,7 @@ import pytest
 
 from wrl_jax.envs.continuous import reference as ref
 from wrl_jax.envs.continuous.reference import ReferenceEnv, next_waypoint_cell, reset, step
+from wrl_jax.envs.continuous.reference_geometry import PI as geo_PI
 from wrl_jax.envs.continuous.reference_geometry import (
     collision_flags,
     lidar_distances,
@@ -57,12 +58,12 @@ def go(state, action, layout=LAY8, params=None, **draws):
 # ------------------------------------------------------------------ kinematics
 def test_wrap_maps_into_minus_pi_pi():
     assert wrap(F(0)) == 0
-    assert wrap(ref.PI) == -ref.PI  # pi + pi = 2pi exactly, floor(1) = 1, pi - 2pi = -pi exactly
-    assert wrap(-ref.PI) == -ref.PI
+    assert wrap(geo_PI) == -geo_PI  # pi + pi = 2pi exactly, floor(1) = 1, pi - 2pi = -pi exactly
+    assert wrap(-geo_PI) == -geo_PI
     np.testing.assert_allclose(wrap(F(4.0)), 4.0 - 2 * np.pi, atol=1e-6)
     np.testing.assert_allclose(wrap(F(-4.0)), 2 * np.pi - 4.0, atol=1e-6)
     for t in np.linspace(-20, 20, 401, dtype=F):
-        assert -ref.PI <= wrap(t) <= ref.PI
+        assert -geo_PI <= wrap(t) <= geo_PI
 
 
 def test_straight_drive_advances_exactly_v_dt():

@@ -39,12 +39,8 @@ from wrl_jax.envs.continuous.reference_types import (
 )
 
 F32 = np.float32
-PI = F32(np.pi)
-TWO_PI = F32(2.0 * np.pi)
 NEIGHBOURS = ((-1, 0), (1, 0), (0, -1), (0, 1))
 """Waypoint candidates in this order: up (row-1), down (row+1), left (col-1), right (col+1)."""
-FIXED_OBS = 11
-"""Observation entries before the lidar."""
 
 
 def next_waypoint_cell(layout: ContinuousLayout, cell, came_from, u) -> tuple[int, int]:
