@@ -1,4 +1,4 @@
-"""Hand-written RL algorithms (PPO, DQN) and the contract the training driver uses.
+"""Hand-written RL algorithms (PPO, DQN, SAC, TD3) and the contract the training driver uses.
 
 The algorithm registry lives here: a name -> the module defining its ``SPEC``
 (an :class:`~wrl_jax.agents.base.AlgoSpec`), imported on first use.
@@ -12,7 +12,12 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from wrl_jax.agents.base import AlgoSpec
 
-ALGORITHM_MODULES = {"ppo": "wrl_jax.agents.ppo", "dqn": "wrl_jax.agents.dqn"}
+ALGORITHM_MODULES = {
+    "ppo": "wrl_jax.agents.ppo",
+    "dqn": "wrl_jax.agents.dqn",
+    "sac": "wrl_jax.agents.sac",
+    "td3": "wrl_jax.agents.td3",
+}
 """Algorithm name -> module defining ``SPEC`` (an :class:`~wrl_jax.agents.base.AlgoSpec`)."""
 
 

@@ -1,4 +1,4 @@
-"""What PPO and DQN both do, written once: hyperparameter rules, traced hyperparameters, schedules, clipping.
+"""What the learners share, written once: hyperparameter rules, traced hyperparameters, schedules, clipping.
 
 Each algorithm declares its *traced* hyperparameters once, as the fields of
 its ``Hyper`` struct (:func:`traced_fields`); every other config field is
@@ -36,8 +36,12 @@ HYPER_RULES: dict[str, tuple[str, Callable[[np.ndarray], np.ndarray]]] = {
     "exploration_final_eps": ("in [0, 1]", lambda x: (x >= 0) & (x <= 1)),
     "exploration_fraction": ("in (0, 1]", lambda x: (x > 0) & (x <= 1)),
     "huber_delta": ("> 0", lambda x: x > 0),
+    "initial_alpha": ("> 0", lambda x: x > 0),
+    "policy_noise": (">= 0", lambda x: x >= 0),
+    "noise_clip": (">= 0", lambda x: x >= 0),
+    "exploration_noise": (">= 0", lambda x: x >= 0),
 }
-"""Valid range of every traced hyperparameter of either algorithm: name -> (rule in words, check)."""
+"""Valid range of every traced hyperparameter of every algorithm: name -> (rule in words, check)."""
 
 
 def traced_fields(hyper_cls: type) -> tuple[str, ...]:

@@ -1,6 +1,6 @@
 """A replay buffer written in JAX: fixed-size circular arrays in the training carry.
 
-DQN learns from transitions it stored earlier. Here the store is a pytree of
+DQN, SAC and TD3 learn from transitions they stored earlier. Here the store is a pytree of
 preallocated arrays (``capacity`` rows each) plus a write position and a fill
 count, so it lives inside the compiled training loop like any other state:
 ``add`` writes a batch of transitions (one per environment, per vector step)
@@ -28,7 +28,7 @@ class Transition:
 
     Attributes:
         obs: ``(B, obs_size)`` float32, the observation the action was taken in.
-        action: ``(B,)`` int32.
+        action: ``(B,)`` int32 (a discrete action) or ``(B, A)`` float32 (a point of a box).
         reward: ``(B,)`` float32.
         next_obs: ``(B, obs_size)`` float32, the observation the transition reached
             (before any automatic reset).
@@ -60,19 +60,29 @@ class ReplayBuffer:
     @property
     def capacity(self) -> int:
         """Rows of storage (static: an array shape)."""
-        return self.data.action.shape[-1]
+        return self.data.reward.shape[-1]
 
     @classmethod
-    def empty(cls, capacity: int, obs_size: int) -> "ReplayBuffer":
-        """A buffer of ``capacity`` zeroed rows, none of them filled."""
+    def empty(cls, capacity: int, obs_size: int, action_size: int | None = None) -> "ReplayBuffer":
+        """A buffer of ``capacity`` zeroed rows, none of them filled.
+
+        ``action_size=None`` stores discrete actions (int32 indices); an integer
+        stores continuous ones (float32 vectors of that length).
+        """
         if int(capacity) < 1:
             raise ValueError(f"replay buffer capacity must be a positive integer, got {capacity}")
         if int(obs_size) < 1:
             raise ValueError(f"observation size must be a positive integer, got {obs_size}")
         capacity, obs_size = int(capacity), int(obs_size)
+        if action_size is None:
+            action = jnp.zeros((capacity,), jnp.int32)
+        elif int(action_size) < 1:
+            raise ValueError(f"action size must be a positive integer, got {action_size}")
+        else:
+            action = jnp.zeros((capacity, int(action_size)), jnp.float32)
         data = Transition(
             obs=jnp.zeros((capacity, obs_size), jnp.float32),
-            action=jnp.zeros((capacity,), jnp.int32),
+            action=action,
             reward=jnp.zeros((capacity,), jnp.float32),
             next_obs=jnp.zeros((capacity, obs_size), jnp.float32),
             terminated=jnp.zeros((capacity,), bool),
@@ -85,7 +95,7 @@ class ReplayBuffer:
         Row ``i`` of the batch goes to ``(position + i) % capacity``. The batch
         must not be larger than the buffer (it would overwrite itself).
         """
-        n = batch.action.shape[0]
+        n = batch.reward.shape[0]
         capacity = self.capacity
         if n > capacity:
             raise ValueError(f"cannot add {n} transitions at once to a replay buffer of capacity {capacity}")

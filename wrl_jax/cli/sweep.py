@@ -192,7 +192,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--grid ent_coef=0.02,0.2 --grid shaping_coef=0,2 --num-seeds 4 --set total_timesteps=60000 --out runs/sweep; "
         f"{FLEET_EXAMPLE}",
     )
-    parser.add_argument("--algo", required=True, help="ppo or dqn")
+    parser.add_argument("--algo", required=True, help="ppo, dqn, sac or td3")
     parser.add_argument("--env", default=None, help="registered environment (default: the algorithm's)")
     parser.add_argument("--preset", default=None, help="base hyperparameter preset (default: the algorithm's)")
     parser.add_argument("--grid", action="append", default=[], metavar="FIELD=V1,V2,...",

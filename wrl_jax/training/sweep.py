@@ -142,7 +142,7 @@ class Sweep:
     """A validated sweep: every grid point's config and env params, batched for one program.
 
     Args:
-        algo_name: ``"ppo"`` or ``"dqn"`` (any name in ``wrl_jax.cli.ALGORITHM_MODULES``).
+        algo_name: ``"ppo"``, ``"dqn"``, ``"sac"`` or ``"td3"`` (any name in ``wrl_jax.agents.ALGORITHM_MODULES``).
         config: the base config (a preset, with ``--set`` overrides), static for every point.
         env_name: registered environment (any family).
         env_overrides: environment options common to every point: anything

@@ -1,0 +1,167 @@
+"""SAC and TD3: settings refused before compiling, the squashed Gaussian's density, the replay of a
+truncation, exact repeats, and learned behaviour on a warehouse small enough for CI.
+
+The learning runs share one compiled program per algorithm (module fixtures, three seeds vmapped).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from wrl_jax import training
+from wrl_jax.agents.base import make_train_seeds
+from wrl_jax.agents.off_policy_config import SAC_DEFAULT, TD3_DEFAULT, SACConfig, TD3Config
+from wrl_jax.agents.sac import SAC
+from wrl_jax.agents.td3 import TD3
+from wrl_jax.core.gymnax_base import spaces
+from wrl_jax.core.registry import make
+from wrl_jax.envs.continuous.evaluation import evaluate_policy, seed_summary
+from wrl_jax.envs.continuous.registration import make_continuous
+
+CORRIDOR = """
+. . .
+S 0 G
+. . .
+"""
+"""Item and goal straight ahead of the start: driving forward delivers in 9 steps."""
+
+SEEDS = [0, 1, 2]
+
+
+def tiny(config_cls, **changes):
+    return config_cls(num_envs=8, total_timesteps=8_000, learning_starts=500, batch_size=64, hidden_sizes=(64, 64),
+                      buffer_size=20_000, gradient_steps=2, learning_rate=1e-3, reward_scale=0.1, **changes)
+
+
+@pytest.fixture(scope="module")
+def corridor():
+    return make_continuous(CORRIDOR, max_steps=60, num_rays=8)
+
+
+def train_and_evaluate(algo, env, params):
+    runners, metrics = jax.jit(make_train_seeds(algo))(training.seed_keys(SEEDS))
+    actors = jax.vmap(algo.network_params)(runners)
+    evaluation = jax.jit(jax.vmap(lambda p: seed_summary(evaluate_policy(algo.greedy_action, p, env, params))))(actors)
+    return runners, metrics, jax.tree.map(np.asarray, evaluation)
+
+
+@pytest.fixture(scope="module")
+def sac_run(corridor):
+    env, params = corridor
+    algo = SAC(tiny(SACConfig, initial_alpha=0.1), env, params)
+    return (algo, *train_and_evaluate(algo, env, params))
+
+
+def test_sac_learns_to_deliver_without_collisions(sac_run):
+    _, _, metrics, evaluation = sac_run
+    print({k: v.tolist() for k, v in evaluation.items()})
+    assert evaluation["eval_solved"].tolist() == [1.0] * len(SEEDS)  # measured: 3/3, 9 steps each
+    assert np.all(evaluation["eval_mean_steps"] <= 12)
+    # Training deliveries rise: the last quarter's episodes deliver far more often than the first's.
+    episodes, delivered = np.asarray(metrics["episodes"]), np.asarray(metrics["terminated"])
+    quarter = episodes.shape[1] // 4
+    first = delivered[:, :quarter].sum() / episodes[:, :quarter].sum()
+    last = delivered[:, -quarter:].sum() / episodes[:, -quarter:].sum()
+    assert last > 0.9 and last > first + 0.4, (first, last)
+    # The temperature was learned: it moved away from where it started.
+    assert not np.allclose(np.asarray(metrics["alpha"])[:, -1], 0.1)
+
+
+def test_td3_learns_to_deliver(corridor):
+    env, params = corridor
+    algo = TD3(tiny(TD3Config), env, params)
+    _, _, evaluation = train_and_evaluate(algo, env, params)
+    print({k: v.tolist() for k, v in evaluation.items()})
+    assert (evaluation["eval_success_rate"] == 1.0).sum() >= 2  # measured: 2/3 seeds solve it in 8,000 steps
+
+
+def test_same_seed_same_bits_and_seeds_differ(sac_run, corridor):
+    algo, runners, _, _ = sac_run
+    again, _ = jax.jit(make_train_seeds(algo))(training.seed_keys(SEEDS))
+    for a, b in zip(jax.tree_util.tree_leaves(runners), jax.tree_util.tree_leaves(again)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    kernels = np.asarray(runners.actor["params"]["Dense_0"]["kernel"])
+    assert not np.array_equal(kernels[0], kernels[1]) and not np.array_equal(kernels[1], kernels[2])
+
+
+def test_truncation_is_stored_with_the_reached_observation(sac_run):
+    """Episodes of the corridor end by truncation at 60 steps early in training: the stored ``next_obs``
+    of such a transition is where the robot got to (one step from ``obs``), not the next episode's start,
+    and ``terminated`` is False there, so the target bootstraps from it."""
+    algo, runners, _, _ = sac_run
+    data = jax.tree.map(lambda x: np.asarray(x[0]), runners.buffer.data)
+    env = algo.env
+    step = float(algo.env_params.v_max * algo.env_params.dt) * 1.25  # a gain may stretch a step
+    moved = np.abs(data.next_obs[:, :2] - data.obs[:, :2]) * np.array([env.width, env.height])
+    assert np.all(moved.max(axis=1) <= step + 1e-5)
+    filled = int(runners.buffer.size[0])
+    # Rows are written num_envs at a time; the row of env e at vector step t+1 follows it by num_envs rows.
+    follows = np.abs(data.obs[algo.config.num_envs:filled, :2] - data.next_obs[: filled - algo.config.num_envs, :2])
+    resets = follows.max(axis=1) > 1e-6
+    assert resets.sum() > 0  # episodes did end inside the buffer
+    ended_without_delivery = resets & ~data.terminated[: filled - algo.config.num_envs]
+    assert ended_without_delivery.sum() > 0  # truncations, stored as not terminated
+
+
+def test_squashed_gaussian_density_counts_tanh_and_the_box(corridor):
+    """log pi(a) of an action in a box of half-width 2 is the Gaussian's log-density, minus the log of
+    tanh's derivative, minus log 2 per dimension (computed here in float64 from the formulas)."""
+    env, params = corridor
+
+    class WideBox(type(env)):
+        def action_space(self, params=None):
+            return spaces.Box(low=-2.0, high=2.0, shape=(2,), dtype=jnp.float32)
+
+    wide = WideBox(params, num_rays=8)
+    algo = SAC(tiny(SACConfig), wide, params)
+    actor, _ = algo.init_networks(jax.random.key(3))
+    obs = jnp.linspace(-1, 1, 5 * 19, dtype=jnp.float32).reshape(5, 19)
+    unit, log_prob = algo.sample_unit(actor, obs, jax.random.key(4))
+    mean, log_std = (np.asarray(x, np.float64) for x in algo.gaussian(actor, obs))
+    u = np.arctanh(np.clip(np.asarray(unit, np.float64), -1 + 1e-7, 1 - 1e-7))
+    gaussian = -0.5 * ((u - mean) / np.exp(log_std)) ** 2 - log_std - 0.5 * math.log(2 * math.pi)
+    expected = (gaussian - np.log(1 - np.tanh(u) ** 2)).sum(axis=1) - 2 * math.log(2.0)
+    np.testing.assert_allclose(np.asarray(log_prob), expected, atol=2e-3)
+    np.testing.assert_allclose(np.asarray(algo.to_env(unit)), 2 * np.asarray(unit), rtol=1e-6)
+    assert algo.target_entropy == -2.0
+
+
+@pytest.mark.parametrize("config_cls,changes,message", [
+    (SACConfig, {"batch_size": 0}, "batch_size must be a positive integer"),
+    (SACConfig, {"learning_rate": -1.0}, "learning_rate must be > 0"),
+    (SACConfig, {"initial_alpha": 0.0}, "initial_alpha must be > 0"),
+    (SACConfig, {"activation": "gelu"}, "activation must be one of"),
+    (SACConfig, {"buffer_size": 4, "num_envs": 8}, "buffer_size"),
+    (TD3Config, {"policy_delay": 0}, "policy_delay must be a positive integer"),
+    (TD3Config, {"noise_clip": -0.1}, "noise_clip must be >= 0"),
+])
+def test_bad_settings_are_refused_before_compiling(corridor, config_cls, changes, message):
+    env, params = corridor
+    algo_cls = SAC if config_cls is SACConfig else TD3
+    with pytest.raises(ValueError, match=message):
+        algo_cls(dataclasses.replace(tiny(config_cls), **changes), env, params)
+
+
+def test_discrete_environments_and_wrong_configs_are_refused(corridor):
+    env, params = corridor
+    warehouse, warehouse_params = make("Warehouse-8x8-v0")
+    with pytest.raises(ValueError, match="continuous action space"):
+        SAC(SAC_DEFAULT, warehouse, warehouse_params)
+    with pytest.raises(TypeError, match="TD3Config"):
+        TD3(SAC_DEFAULT, env, params)
+    assert TD3_DEFAULT.hyper().policy_noise == pytest.approx(0.2)
+
+
+def test_flops_count_both_phases(corridor):
+    env, params = corridor
+    sac, td3 = SAC(tiny(SACConfig), env, params), TD3(tiny(TD3Config), env, params)
+    actor, critic = sac.network_flops()
+    assert actor == 2 * (19 * 64 + 64 * 64 + 64 * 4) and critic == 2 * (21 * 64 + 64 * 64 + 64)
+    assert sac.flops_per_update() == 2 * 64 * (4 * actor + 14 * critic) + 8 * actor
+    assert 0 < td3.gradient_step_flops() < sac.gradient_step_flops()

@@ -1,0 +1,15 @@
+"""Train TD3 on a continuous warehouse: ``python train_td3.py --help`` lists every flag.
+
+Defaults: Continuous-Warehouse-12x12-v0, the ``default`` preset, 4 seeds at once.
+See docs/continuous.md.
+"""
+
+import sys
+
+if __name__ == "__main__":
+    from wrl_jax.cli import machine  # imports no JAX
+
+    machine.apply_for_command(sys.argv[1:])  # XLA's flags and distributed JAX, before JAX starts
+    from wrl_jax.cli.train import main
+
+    sys.exit(main("td3"))

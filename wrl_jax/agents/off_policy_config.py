@@ -1,0 +1,210 @@
+"""SAC's and TD3's settings: what fixes the program (static config fields), what is traced
+(:class:`SACHyper`, :class:`TD3Hyper`, vmappable for a sweep), and the presets a command starts from.
+
+Both learners share every setting of an off-policy loop (:class:`OffPolicyConfig`); each adds
+its own. As for PPO and DQN, each field is declared once: a ``Hyper`` field is traced, every
+other field is static.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, ClassVar
+
+import jax
+from flax import struct
+
+from wrl_jax.agents.common import (
+    check_hidden_sizes,
+    check_hyper,
+    check_positive_ints,
+    hyper_from_config,
+    traced_fields,
+)
+from wrl_jax.agents.networks import ACTIVATIONS
+
+
+@struct.dataclass
+class SACHyper:
+    """SAC's traced hyperparameters (float32 scalars, or batched along a sweep axis)."""
+
+    learning_rate: jax.Array
+    gamma: jax.Array
+    tau: jax.Array
+    reward_scale: jax.Array
+    initial_alpha: jax.Array
+
+
+@struct.dataclass
+class TD3Hyper:
+    """TD3's traced hyperparameters (float32 scalars, or batched along a sweep axis)."""
+
+    learning_rate: jax.Array
+    gamma: jax.Array
+    tau: jax.Array
+    reward_scale: jax.Array
+    policy_noise: jax.Array
+    noise_clip: jax.Array
+    exploration_noise: jax.Array
+
+
+@dataclasses.dataclass(frozen=True)
+class OffPolicyConfig:
+    """What every off-policy actor-critic run needs.
+
+    Static (shapes and program structure):
+        total_timesteps: environment transitions per seed (all environments together).
+        num_envs: environments stepped together in one vector step.
+        hidden_sizes: hidden widths of the actor and of each critic.
+        activation: ``"relu"`` or ``"tanh"``.
+        buffer_size: replay capacity in transitions.
+        batch_size: transitions per gradient step.
+        train_freq: vector steps collected per update.
+        gradient_steps: gradient steps per update (once ``learning_starts`` is passed).
+        learning_starts: transitions collected with uniformly random actions before learning.
+        adam_eps: Adam's epsilon.
+
+    Traced:
+        learning_rate: Adam step size of every network (and of SAC's temperature).
+        gamma: discount.
+        tau: Polyak step of the target networks.
+        reward_scale: rewards are multiplied by it before learning.
+    """
+
+    hyper_cls: ClassVar[type] = SACHyper
+    owner: ClassVar[str] = "OffPolicyConfig"
+
+    total_timesteps: int = 200_000
+    num_envs: int = 16
+    hidden_sizes: tuple[int, ...] = (256, 256)
+    activation: str = "relu"
+    buffer_size: int = 200_000
+    batch_size: int = 256
+    train_freq: int = 1
+    gradient_steps: int = 1
+    learning_starts: int = 5_000
+    adam_eps: float = 1e-8
+    # traced
+    learning_rate: float = 3e-4
+    gamma: float = 0.99
+    tau: float = 0.005
+    reward_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "hidden_sizes", tuple(int(w) for w in self.hidden_sizes))
+
+    @property
+    def steps_per_update(self) -> int:
+        """Transitions one update collects (``train_freq`` vector steps)."""
+        return self.num_envs * self.train_freq
+
+    @property
+    def num_updates(self) -> int:
+        return self.total_timesteps // self.steps_per_update
+
+    def replace(self, **changes: Any):
+        """A copy with some fields changed."""
+        return dataclasses.replace(self, **changes)
+
+    def hyper(self, **overrides: Any):
+        """The traced hyperparameters, any of them overridden (a sweep's arrays)."""
+        return hyper_from_config(self.hyper_cls, self, self.owner, **overrides)
+
+    def validate(self) -> None:
+        """Raise a ``ValueError`` naming the first problem, before anything compiles."""
+        owner = self.owner
+        check_positive_ints(owner, self, ("total_timesteps", "num_envs", "buffer_size", "batch_size", "train_freq",
+                                          "gradient_steps", *self.extra_positive_ints()))
+        starts = self.learning_starts
+        if isinstance(starts, bool) or not isinstance(starts, int) or starts < 0:
+            raise ValueError(f"{owner}.learning_starts must be a non-negative integer, got {starts!r}")
+        check_hidden_sizes(owner, self.hidden_sizes)
+        if self.activation not in ACTIVATIONS:
+            raise ValueError(f"{owner}.activation must be one of {sorted(ACTIVATIONS)}, got {self.activation!r}")
+        if self.buffer_size < self.steps_per_update:
+            raise ValueError(f"{owner}.buffer_size ({self.buffer_size}) must hold one update's transitions "
+                             f"(num_envs * train_freq = {self.steps_per_update})")
+        if self.total_timesteps < self.steps_per_update:
+            raise ValueError(f"{owner}.total_timesteps ({self.total_timesteps}) is less than one update "
+                             f"(num_envs * train_freq = {self.steps_per_update} transitions)")
+        names = traced_fields(self.hyper_cls)
+        for name in (*names, "adam_eps"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f"{owner}.{name} must be a finite number, got {value!r}")
+        check_hyper(f"{owner}", **{name: getattr(self, name) for name in names})
+        if self.adam_eps <= 0:
+            raise ValueError(f"{owner}.adam_eps must be positive, got {self.adam_eps}")
+
+    def extra_positive_ints(self) -> tuple[str, ...]:
+        return ()
+
+
+@dataclasses.dataclass(frozen=True)
+class SACConfig(OffPolicyConfig):
+    """Soft actor-critic (Haarnoja et al. 2018, the version with a learned temperature).
+
+    Static:
+        learn_alpha: learn the temperature towards the target entropy ``-|A|``
+            (otherwise it stays ``initial_alpha``).
+
+    Traced:
+        initial_alpha: the temperature at the start.
+    """
+
+    hyper_cls: ClassVar[type] = SACHyper
+    owner: ClassVar[str] = "SACConfig"
+
+    learn_alpha: bool = True
+    initial_alpha: float = 1.0
+
+
+@dataclasses.dataclass(frozen=True)
+class TD3Config(OffPolicyConfig):
+    """Twin delayed DDPG (Fujimoto et al. 2018).
+
+    Static:
+        policy_delay: gradient steps per actor (and target) update.
+
+    Traced:
+        policy_noise: standard deviation of the target policy's smoothing noise.
+        noise_clip: the smoothing noise is clipped to this magnitude.
+        exploration_noise: standard deviation of the Gaussian added to actions while collecting.
+    """
+
+    hyper_cls: ClassVar[type] = TD3Hyper
+    owner: ClassVar[str] = "TD3Config"
+
+    policy_delay: int = 2
+    policy_noise: float = 0.2
+    noise_clip: float = 0.5
+    exploration_noise: float = 0.1
+
+    def extra_positive_ints(self) -> tuple[str, ...]:
+        return ("policy_delay",)
+
+
+SB3_SAC = SACConfig(
+    # Stable-Baselines3 2.x SAC defaults (what the SB3 comparison runs on the Gymnasium adapter):
+    num_envs=1, train_freq=1, gradient_steps=1, batch_size=256, buffer_size=1_000_000, learning_starts=100,
+    hidden_sizes=(256, 256), learning_rate=3e-4, gamma=0.99, tau=0.005, initial_alpha=1.0, learn_alpha=True,
+    total_timesteps=200_000,
+)
+"""SB3's SAC defaults: the same hyperparameters on both sides of a speed comparison."""
+
+SAC_DEFAULT = SACConfig(
+    num_envs=16, train_freq=1, gradient_steps=2, batch_size=256, hidden_sizes=(128, 128), buffer_size=200_000,
+    learning_starts=5_000, learning_rate=1e-3, gamma=0.99, tau=0.005,
+    reward_scale=0.1,  # the warehouse's rewards reach 200: Q-values of tens, not thousands
+    initial_alpha=0.1, total_timesteps=200_000,
+)
+"""Ours for the continuous warehouse (bench/results/continuous/NOTES.md has the measurements)."""
+
+TD3_DEFAULT = TD3Config(
+    num_envs=16, train_freq=1, gradient_steps=2, batch_size=256, hidden_sizes=(128, 128), buffer_size=200_000,
+    learning_starts=5_000, learning_rate=1e-3, gamma=0.99, tau=0.005, reward_scale=0.1, total_timesteps=200_000,
+)
+"""Ours for the continuous warehouse, the same loop as SAC's default."""
+
+SAC_PRESETS: dict[str, SACConfig] = {"default": SAC_DEFAULT, "sb3": SB3_SAC}
+TD3_PRESETS: dict[str, TD3Config] = {"default": TD3_DEFAULT}
