@@ -11,6 +11,7 @@ from wrl_jax.core.registry import register, register_evaluation
 register_evaluation("warehouse", "wrl_jax.envs.warehouse.evaluation:EVALUATION")
 register_evaluation("procedural", "wrl_jax.envs.procedural.evaluation:EVALUATION")
 register_evaluation("fleet", "wrl_jax.envs.fleet.evaluation:EVALUATION")
+register_evaluation("continuous", "wrl_jax.envs.continuous.evaluation:EVALUATION")
 
 register("Warehouse-8x8-v0", "wrl_jax.envs.warehouse.registration:make_named", family="warehouse",
          map_name="8x8")

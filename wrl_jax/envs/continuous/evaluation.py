@@ -1,0 +1,204 @@
+"""Deterministic evaluation of a policy on every item of a continuous warehouse, for every seed.
+
+One episode per (round, item index): the environment is reset to that item (the other reset draws
+from a fixed key, so every evaluation sees the same episodes) and the deterministic policy acts
+until the item is delivered or the episode is truncated. With moving obstacles one round is too few
+episodes to see rare collisions, so such warehouses run :data:`OBSTACLE_ROUNDS` rounds. Everything
+is one jitted program: ``vmap`` over rounds and items, a ``lax.while_loop`` over time that stops
+once every episode has ended.
+
+The family's hook for the training driver and the CLI (:data:`EVALUATION`): a seed has *solved* its
+warehouse when every episode delivers without touching anything.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from wrl_jax.core.evaluation import FamilyEvaluation, TrainRate
+from wrl_jax.envs.continuous.dynamics import reset_core
+from wrl_jax.envs.continuous.env import ContinuousWarehouse
+from wrl_jax.envs.continuous.types import ContinuousParams
+
+GreedyFn = Callable[[Any, jax.Array], jax.Array]
+
+OBSTACLE_ROUNDS = 8
+"""Episodes per item where obstacles move (one where nothing does: the episode is then fixed)."""
+
+EVAL_SEED = 20_261_204
+"""The key every evaluation draws its episodes from: the same episodes for every seed and checkpoint."""
+
+SOLVED_DEFINITION = ("env steps per seed at the first periodic evaluation in which the deterministic policy "
+                     "delivered every item without a collision")
+
+
+@struct.dataclass
+class ContinuousEval:
+    """Episodes of one policy; leaves have shape ``(rounds, I_max)`` (rows past ``num_items`` are padding)."""
+
+    valid: jax.Array  # bool: item index < num_items
+    delivered: jax.Array  # bool
+    steps: jax.Array  # int32 (max_steps when not delivered)
+    episode_return: jax.Array  # float32
+    collisions: jax.Array  # int32: shelf, wall and obstacle contacts
+    pickup_step: jax.Array  # int32, -1 if never picked up
+
+
+def rounds(env: ContinuousWarehouse) -> int:
+    return OBSTACLE_ROUNDS if env.num_obstacles else 1
+
+
+def run_episode(act: Callable[[jax.Array, Any], jax.Array], env: ContinuousWarehouse, params: ContinuousParams,
+                key: jax.Array, item_index: jax.Array) -> tuple[jax.Array, ...]:
+    """One episode from ``key`` with the item forced; ``act(obs, state) -> action`` (a policy or a controller).
+
+    Returns ``(delivered, steps, return, collisions, pickup_step)``.
+    """
+    reset_key, step_key = jax.random.split(key)
+    draws = env.reset_draws(reset_key, params).replace(item_index=jnp.asarray(item_index, jnp.int32))
+    obs, state = reset_core(draws, params)
+    zero = jnp.zeros((), jnp.int32)
+    init = (obs, state, jnp.zeros((), bool), jnp.zeros((), bool), jnp.zeros((), jnp.float32), zero, zero - 1)
+
+    def body(carry):
+        obs, state, _, _, ret, collisions, pickup_step = carry
+        action = act(obs, state)
+        obs, state, reward, terminated, truncated, info = env.transition(
+            jax.random.fold_in(step_key, state.time), state, action, params)
+        pickup_step = jnp.where(info["picked_up"], state.time, pickup_step)
+        return (obs, state, terminated | truncated, terminated, ret + reward,
+                collisions + info["collision"].astype(jnp.int32), pickup_step)
+
+    _, state, _, delivered, ret, collisions, pickup_step = jax.lax.while_loop(lambda c: ~c[2], body, init)
+    return delivered, state.time, ret, collisions, pickup_step
+
+
+def evaluate_episodes(act: Callable[[jax.Array, Any], jax.Array], env: ContinuousWarehouse,
+                      params: ContinuousParams, num_rounds: int | None = None) -> ContinuousEval:
+    """``act`` on every (round, item): the evaluation's fixed episodes (shape ``(rounds, I_max)``)."""
+    num_rounds = rounds(env) if num_rounds is None else int(num_rounds)
+    items = jnp.arange(params.items.shape[0], dtype=jnp.int32)
+    keys = jax.random.split(jax.random.PRNGKey(EVAL_SEED), num_rounds * items.shape[0])
+    keys = keys.reshape(num_rounds, items.shape[0], *keys.shape[1:])
+    episode = jax.vmap(jax.vmap(lambda k, i: run_episode(act, env, params, k, i)), in_axes=(0, None))
+    delivered, steps, ret, collisions, pickup_step = episode(keys, items)
+    valid = jnp.broadcast_to(items < params.num_items, delivered.shape)
+    return ContinuousEval(valid=valid, delivered=delivered & valid, steps=steps, episode_return=ret,
+                          collisions=collisions, pickup_step=pickup_step)
+
+
+def evaluate_policy(greedy_action: GreedyFn, network_params: Any, env: ContinuousWarehouse,
+                    params: ContinuousParams) -> ContinuousEval:
+    """The deterministic policy on the evaluation's episodes."""
+    return evaluate_episodes(lambda obs, state: greedy_action(network_params, obs), env, params)
+
+
+# ---------------------------------------------------------------- in training
+def seed_summary(result: ContinuousEval) -> dict[str, jax.Array]:
+    """Float32 scalars of one seed's evaluation, jittable; ``eval_solved`` is 1.0 when every
+    episode delivered without a collision."""
+    valid = result.valid
+    n = valid.sum().astype(jnp.float32)
+    delivered = result.delivered & valid
+    n_delivered = delivered.sum().astype(jnp.float32)
+    clean = delivered & (result.collisions == 0)
+    return {
+        "eval_success_rate": n_delivered / n,
+        "eval_mean_steps": jnp.where(n_delivered > 0, jnp.where(delivered, result.steps, 0).sum() / n_delivered,
+                                     jnp.nan),
+        "eval_collisions": jnp.where(valid, result.collisions, 0).sum() / n,
+        "eval_mean_return": jnp.where(valid, result.episode_return, 0.0).sum() / n,
+        "eval_solved": (clean.sum() == valid.sum()).astype(jnp.float32),
+    }
+
+
+# ------------------------------------------------------------- final report
+def _mean(values: np.ndarray, mask: np.ndarray) -> float | None:
+    return float(values[mask].mean()) if mask.any() else None
+
+
+def summarize(result: ContinuousEval, seeds: Sequence[int] | None = None) -> dict[str, Any]:
+    """Aggregates over seeds, rounds and items, and one row per seed; plain numbers for JSON.
+
+    ``success_rate`` (delivered / episodes), ``mean_steps`` (of delivered episodes),
+    ``collisions_per_episode``, ``collision_free_rate``, ``mean_return``, ``all_seeds_solved``.
+    """
+    r = jax.tree.map(np.asarray, result)
+    num_seeds = r.valid.shape[0]
+    seeds = list(range(num_seeds)) if seeds is None else [int(s) for s in seeds]
+    if len(seeds) != num_seeds:
+        raise ValueError(f"got {len(seeds)} seed labels for {num_seeds} evaluated seeds")
+    valid = r.valid.astype(bool)
+    delivered = r.delivered & valid
+
+    def block(s: slice | int) -> dict[str, Any]:
+        v, d = valid[s], delivered[s]
+        return {
+            "success_rate": float(d.sum() / v.sum()),
+            "mean_steps": _mean(r.steps[s], d),
+            "collisions_per_episode": float(r.collisions[s][v].sum() / v.sum()),
+            "collision_free_rate": float(((r.collisions[s] == 0) & v).sum() / v.sum()),
+            "mean_return": _mean(r.episode_return[s], v),
+        }
+
+    summary = {"num_seeds": num_seeds, "num_items": int(valid[0, 0].sum()), "rounds": int(valid.shape[1]),
+               "episodes": int(valid.sum()), **block(slice(None))}
+    summary["per_seed"] = [{"seed": seed, **block(i)} for i, seed in enumerate(seeds)]
+    summary["all_seeds_solved"] = bool(
+        all(row["success_rate"] == 1.0 and row["collision_free_rate"] == 1.0 for row in summary["per_seed"]))
+    return summary
+
+
+def _pct(x: float | None) -> str:
+    return "n/a" if x is None else f"{100.0 * x:.1f}%"
+
+
+def _num(x: float | None, fmt: str = "{:.1f}") -> str:
+    return "n/a" if x is None else fmt.format(x)
+
+
+def format_report(summary: dict[str, Any], label: str, convergence_steps: Sequence[int | None] | None = None,
+                  study: dict[str, str] | None = None) -> str:
+    """A Markdown table: delivery, steps, collisions, return, first solved step."""
+    solved = sum(1 for row in summary["per_seed"] if row["success_rate"] == 1.0 and row["collision_free_rate"] == 1.0)
+    reached = [c for c in (convergence_steps or []) if c is not None]
+    conv = (f"median {int(np.median(reached)):,} steps ({len(reached)}/{len(convergence_steps)} seeds)"
+            if reached else "never" if convergence_steps else "not measured")
+    rows = [
+        ("Delivered", f"{_pct(summary['success_rate'])} ({summary['num_items']} items x {summary['rounds']} rounds x "
+                      f"{summary['num_seeds']} seeds; {solved}/{summary['num_seeds']} seeds solve it)"),
+        ("Mean steps (delivered)", _num(summary["mean_steps"])),
+        ("Collisions per episode", _num(summary["collisions_per_episode"], "{:.3f}")),
+        ("Collision-free episodes", _pct(summary["collision_free_rate"])),
+        ("Mean return", _num(summary["mean_return"], "{:+.1f}")),
+        ("First solved", conv),
+    ]
+    lines = [f"| Metric | {label} |", "|---|---|"] + [f"| {name} | {value} |" for name, value in rows]
+    return "\n".join(lines)
+
+
+def format_seeds(summary: dict[str, Any]) -> str:
+    lines = ["| seed | delivered | mean steps | collisions / episode |", "|---|---|---|---|"]
+    for row in summary["per_seed"]:
+        lines.append(f"| {row['seed']} | {_pct(row['success_rate'])} | {_num(row['mean_steps'])} | "
+                     f"{row['collisions_per_episode']:.3f} |")
+    return "\n".join(lines)
+
+
+EVALUATION = FamilyEvaluation(
+    evaluate_policy=evaluate_policy,
+    seed_summary=seed_summary,
+    solved_key="eval_solved",
+    solved_definition=SOLVED_DEFINITION,
+    summarize=summarize,
+    format_report=format_report,
+    format_details=format_seeds,
+    progress_metric=("eval_success_rate", "eval delivered"),
+    train_rates=(TrainRate("delivery_rate", "delivery rate (training episodes)", "terminated", progress="delivered"),),
+)
