@@ -167,11 +167,11 @@ def test_propagation_needs_a_map_in_the_observation():
 
 
 def test_training_makes_shelves_dear_and_delivers_on_held_out_layouts():
-    """100 updates of 1,024 steps: the costs start equal on shelves and floor; PPO must raise the shelves'
+    """50 updates of 1,024 steps: the costs start equal on shelves and floor; PPO must raise the shelves'
     (the network is told nothing about them) and deliver greedily on the periodic held-out evaluation,
     far more than the untrained network does (whose field runs through shelves as if they were floor)."""
     env, params = make("Procedural-Warehouse-v0", pool_size=256, observe_map=True)
-    config = dataclasses.replace(ppo_config.PROCEDURAL, encoder="propagation", num_envs=32, total_timesteps=100 * 1024,
+    config = dataclasses.replace(ppo_config.PROCEDURAL, encoder="propagation", num_envs=32, total_timesteps=50 * 1024,
                                  hidden_sizes=(64, 64))
     algo = ppo.PPO(config, env, params)
     train = make_train(algo)
@@ -191,4 +191,4 @@ def test_training_makes_shelves_dear_and_delivers_on_held_out_layouts():
 
     delivered, untrained = delivery(runner), delivery(algo.init(jax.random.key(0)))
     print(f"held-out greedy delivery {delivered:.3f}, untrained {untrained:.3f}")
-    assert delivered > 0.7 and delivered > untrained + 0.4, (delivered, untrained)  # measured 0.80 and 0.12
+    assert delivered > 0.7 and delivered > untrained + 0.4, (delivered, untrained)  # measured 0.90 and 0.12 (seeds 1, 2: 0.85, 0.91)
