@@ -1,4 +1,5 @@
-"""Gymnasium ids for the single-robot warehouses: ``gymnasium.make("wrl_jax/Warehouse-8x8-v0")``.
+"""Gymnasium ids for the single-robot warehouses: ``gymnasium.make("wrl_jax/Warehouse-8x8-v0")``, and the
+continuous ones (``"wrl_jax/Continuous-Warehouse-12x12-v0"``: :mod:`wrl_jax.wrappers.gymnasium_continuous`).
 
 Registration stores entry-point strings only, so it imports Gymnasium and nothing of JAX;
 ``import wrl_jax`` calls it. The adapters themselves are :mod:`wrl_jax.wrappers.gymnasium`.
@@ -13,6 +14,7 @@ from wrl_jax.core.registry import registered_names
 GYM_NAMESPACE = "wrl_jax"
 SINGLE_ENTRY = "wrl_jax.wrappers.gymnasium:WarehouseGymEnv"
 VECTOR_ENTRY = "wrl_jax.wrappers.gymnasium_vector:WarehouseVectorEnv"
+CONTINUOUS_ENTRY = "wrl_jax.wrappers.gymnasium_continuous:ContinuousGymEnv"
 
 
 def gym_id(name: str) -> str:
@@ -40,5 +42,11 @@ def register_gymnasium_envs() -> list[str]:
                 max_episode_steps=None,
                 nondeterministic=False,
             )
+        ids.append(env_id)
+    for name in registered_names(family="continuous"):  # single environments (Box actions)
+        env_id = gym_id(name)
+        if env_id not in gym.registry:
+            gym.register(id=env_id, entry_point=CONTINUOUS_ENTRY, kwargs={"name": name}, max_episode_steps=None,
+                         nondeterministic=False)
         ids.append(env_id)
     return ids

@@ -1,0 +1,80 @@
+"""The continuous warehouse through Gymnasium: the checker passes, the numbers are the JAX
+environment's, bad actions fail clearly, and Stable-Baselines3's SAC trains on it."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import jax
+import numpy as np
+import pytest
+
+import wrl_jax  # noqa: F401  (registers the Gymnasium ids)
+from wrl_jax.wrappers.gymnasium_continuous import ContinuousGymEnv
+
+IDS = ["wrl_jax/Continuous-Warehouse-8x8-v0", "wrl_jax/Continuous-Warehouse-12x12-Dynamic-v0"]
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_gymnasium_env_checker(env_id):
+    from gymnasium.utils.env_checker import check_env
+
+    env = gym.make(env_id, randomize=True).unwrapped
+    check_env(env, skip_render_check=True)
+    assert env.action_space == gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+
+
+def test_adapter_is_the_jax_transition_step_by_step():
+    env = ContinuousGymEnv("Continuous-Warehouse-12x12-Dynamic-v0", randomize=True)
+    jax_env, params = env.jax_env, env.params
+    obs, _ = env.reset(seed=7)
+    key, reset_key = jax.random.split(jax.random.key(7))
+    reset, transition = jax.jit(jax_env.reset_env), jax.jit(jax_env.transition)  # compiled, as the adapter's
+    expected_obs, state = reset(reset_key, params)
+    np.testing.assert_array_equal(obs, np.asarray(expected_obs))
+    rng = np.random.default_rng(0)
+    for _ in range(60):
+        action = rng.uniform(-1, 1, 2).astype(np.float32)
+        obs, reward, terminated, truncated, info = env.step(action)
+        key, step_key = jax.random.split(key)
+        expected_obs, state, expected_reward, term, trunc, jax_info = transition(step_key, state, action, params)
+        np.testing.assert_array_equal(obs, np.asarray(expected_obs))
+        assert reward == float(expected_reward) and terminated == bool(term) and truncated == bool(trunc)
+        assert info["collision"] == bool(jax_info["collision"])
+        if terminated or truncated:
+            break
+
+
+def test_seeds_repeat_and_differ():
+    env = ContinuousGymEnv("Continuous-Warehouse-12x12-Dynamic-v0", randomize=True)
+    first = [env.reset(seed=s)[0] for s in (1, 1, 2)]
+    np.testing.assert_array_equal(first[0], first[1])
+    assert not np.array_equal(first[0], first[2])
+
+
+def test_bad_actions_and_names_fail_clearly():
+    env = ContinuousGymEnv("Continuous-Warehouse-8x8-v0")
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.zeros(2, np.float32))
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="2 numbers"):
+        env.step(np.zeros(3, np.float32))
+    with pytest.raises(ValueError, match="2 numbers"):
+        env.step(np.array(["a", "b"]))
+    _, _, _, _, info = env.step(np.array([np.nan, 0.0], np.float32))  # the contract: read as 0, flagged
+    assert info["invalid_action"]
+    with pytest.raises(ValueError, match="not a continuous warehouse"):
+        ContinuousGymEnv("Warehouse-8x8-v0")
+
+
+def test_stable_baselines3_sac_trains_on_it():
+    sb3 = pytest.importorskip("stable_baselines3")
+    import torch
+
+    torch.set_num_threads(1)  # the test workers already use the cores
+    env = gym.make("wrl_jax/Continuous-Warehouse-8x8-v0")
+    model = sb3.SAC("MlpPolicy", env, learning_starts=50, batch_size=32, policy_kwargs={"net_arch": [32, 32]},
+                    seed=0, verbose=0)
+    model.learn(total_timesteps=120)
+    assert model.num_timesteps == 120 and model.replay_buffer.size() == 120
+    action, _ = model.predict(env.reset(seed=0)[0], deterministic=True)
+    assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
