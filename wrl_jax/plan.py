@@ -1,6 +1,8 @@
-"""``python -m wrl_jax.plan --planner {greedy,pibt} --env Fleet-12x12-v0 --num-robots K --episodes E --json OUT``.
+"""``python -m wrl_jax.plan --planner {greedy,pibt} --env Fleet-12x12-v0 --num-robots K --episodes E --json OUT``,
+or ``--planner pursuit --env Continuous-Warehouse-12x12-Dynamic-v0``.
 
-Runs a classical fleet planner and reports its throughput; see :mod:`wrl_jax.cli.plan`.
+Runs a classical fleet planner (throughput) or the continuous warehouse's pure-pursuit controller
+(delivery, collisions, steps against the yardstick); see :mod:`wrl_jax.cli.plan`.
 """
 
 import sys

@@ -1,15 +1,20 @@
-"""``python -m wrl_jax.plan``: run a classical planner on a fleet and report its throughput.
+"""``python -m wrl_jax.plan``: run a classical planner on a fleet, or pure pursuit on the continuous warehouse.
 
-Example::
+Examples::
 
     python -m wrl_jax.plan --planner pibt --env Fleet-12x12-v0 --num-robots 8 --episodes 32 --json pibt.json
+    python -m wrl_jax.plan --planner pursuit --env Continuous-Warehouse-12x12-Dynamic-v0 --episodes 256
 
-All episodes (shifts of ``--horizon`` steps, default the env's ``max_steps``)
+The planner names the family: ``greedy`` and ``pibt`` plan fleets, ``pursuit`` drives the continuous
+warehouse. Fleet: all episodes (shifts of ``--horizon`` steps, default the env's ``max_steps``)
 run vmapped in one jitted program (:func:`wrl_jax.envs.fleet.metrics.run_episodes`).
 Printed and written: throughput (deliveries per step, all robots) with a 95 %
 Student-t interval over episodes, the bound ``K / L*`` (FLEET_SPEC.md
 "Metrics"), and per robot the mean deliveries, shelf hits, wall bumps,
-robot blocks and waits per shift. Bad flags raise ``ValueError`` before
+robot blocks and waits per shift. Continuous: episode ``e`` takes item ``e mod I``, all vmapped in one
+program (:func:`wrl_jax.envs.continuous.yardstick.pursuit_episodes`); printed and written: the delivery
+rate, collisions per episode, and per item the mean steps against CONTINUOUS_SPEC.md's yardstick
+``D_i / (v_max dt)`` (``--randomize`` for domain randomization). Bad flags raise ``ValueError`` before
 anything compiles; the command prints it and exits with status 2.
 """
 
@@ -27,11 +32,12 @@ from wrl_jax.cli.machine import DEFAULT_XLA_OPT_LEVEL, apply_xla_opt_level, cpu_
 
 def parser() -> argparse.ArgumentParser:
     out = argparse.ArgumentParser(prog="python -m wrl_jax.plan", description=__doc__.split("\n\n")[0])
-    out.add_argument("--planner", default="pibt", help="greedy or pibt (default pibt)")
-    out.add_argument("--env", default="Fleet-12x12-v0", help="a registered fleet environment")
-    out.add_argument("--num-robots", type=int, default=4, help="K, 1..number of start cells (default 4)")
+    out.add_argument("--planner", default="pibt", help="greedy or pibt (fleet), pursuit (continuous); default pibt")
+    out.add_argument("--env", default="Fleet-12x12-v0", help="a registered fleet or continuous environment")
+    out.add_argument("--num-robots", type=int, default=None, help="fleet: K, 1..number of start cells (default 4)")
     out.add_argument("--episodes", type=int, default=32, help="E shifts, vmapped (default 32)")
-    out.add_argument("--horizon", type=int, default=None, help="steps per shift (default: the env's max_steps)")
+    out.add_argument("--horizon", type=int, default=None, help="fleet: steps per shift (default: the env's max_steps)")
+    out.add_argument("--randomize", action="store_true", help="continuous: domain randomization (gains, noise)")
     out.add_argument("--seed", type=int, default=0)
     out.add_argument("--json", type=Path, default=None, help="write the full report here")
     out.add_argument("--xla-opt-level", type=int, default=DEFAULT_XLA_OPT_LEVEL,
@@ -45,9 +51,29 @@ def _positive(name: str, value: Any) -> int:
     return value
 
 
-def run_plan(planner: str, env_name: str, num_robots: int, episodes: int, horizon: int | None = None,
+PLANNER_FAMILIES = {"greedy": "fleet", "pibt": "fleet", "pursuit": "continuous"}
+"""Each planner and the environment family it drives."""
+
+
+def check_family(planner: str, env_name: str) -> str:
+    """The family ``planner`` drives, when ``env_name`` is of it; else a ``ValueError`` saying what fits."""
+    from wrl_jax.core import registry
+
+    if planner not in PLANNER_FAMILIES:
+        raise ValueError(f"unknown planner {planner!r}; known: greedy, pibt (fleet environments), "
+                         f"pursuit (continuous environments)")
+    family, found = PLANNER_FAMILIES[planner], registry.entry(env_name).family
+    if found != family:
+        hint = {"continuous": "; a continuous environment takes --planner pursuit",
+                "fleet": "; a fleet takes --planner greedy or pibt"}.get(found, "")
+        raise ValueError(f"--env {env_name!r} is not a {family} environment (--planner {planner}){hint}; "
+                         f"{family} environments: {', '.join(registry.registered_names(family))}")
+    return family
+
+
+def run_plan(planner: str, env_name: str, num_robots: int | None, episodes: int, horizon: int | None = None,
              seed: int = 0) -> dict[str, Any]:
-    """Validate, build, run and summarize; the report as a JSON-ready dict."""
+    """Validate, build, run and summarize a fleet planner; the report as a JSON-ready dict."""
     import jax
 
     from wrl_jax.core import registry
@@ -55,11 +81,10 @@ def run_plan(planner: str, env_name: str, num_robots: int, episodes: int, horizo
     from wrl_jax.envs.fleet.planners import check_planner
 
     check_planner(planner)
+    num_robots = 4 if num_robots is None else num_robots
     _positive("--num-robots", num_robots)
     _positive("--episodes", episodes)
-    if registry.entry(env_name).family != "fleet":
-        raise ValueError(f"--env {env_name!r} is not a fleet environment; fleet environments: "
-                         f"{', '.join(registry.registered_names('fleet'))}")
+    check_family(planner, env_name)
     env, params = registry.make(env_name, num_robots=num_robots)
     horizon = int(params.max_steps) if horizon is None else _positive("--horizon", horizon)
 
@@ -75,7 +100,58 @@ def run_plan(planner: str, env_name: str, num_robots: int, episodes: int, horizo
     return report
 
 
+def run_pursuit_plan(env_name: str, episodes: int, seed: int = 0, randomize: bool = False) -> dict[str, Any]:
+    """Validate, build, run and summarize pure pursuit on a continuous environment (every item covered)."""
+    import jax
+
+    from wrl_jax.core import registry
+    from wrl_jax.envs.continuous import yardstick
+    from wrl_jax.envs.continuous.pursuit import PursuitConfig, make_plan
+
+    _positive("--episodes", episodes)
+    check_family("pursuit", env_name)
+    env, params = registry.make(env_name, randomize=randomize)
+    config = PursuitConfig()
+    plan, bounds = make_plan(params, config), yardstick.item_bounds(params)
+    horizon, key = int(params.max_steps), jax.random.key(seed)
+    start = time.perf_counter()
+    compiled = yardstick.pursuit_episodes.lower(env, params, plan, config, key, episodes, horizon).compile()
+    compile_s = time.perf_counter() - start
+    start = time.perf_counter()
+    results = jax.device_get(compiled(params, plan, key))
+    run_s = time.perf_counter() - start
+    report = yardstick.summarize(results, bounds, int(params.num_items))
+    report.update(env=env_name, planner="pursuit", family="continuous", seed=seed, randomize=randomize,
+                  max_steps=horizon, compile_s=compile_s, run_s=run_s, jax=jax.__version__, machine=cpu_info())
+    return report
+
+
+def format_pursuit_report(report: dict[str, Any]) -> str:
+    hits = report["hits_per_episode"]
+    excess = "n/a (nothing delivered)" if report["excess_pct"] is None else f"{report['excess_pct']:+.1f} %"
+    lines = [
+        f"pursuit on {report['env']}{' (randomized)' if report['randomize'] else ''}, {report['episodes']} episodes "
+        f"(seed {report['seed']}; compile {report['compile_s']:.1f} s, run {report['run_s']:.2f} s)",
+        f"delivered {100 * report['delivery_rate']:.1f} %, collisions {report['collisions_per_episode']:.2f} "
+        f"per episode (shelf {hits['hit_shelf']:.2f}, wall {hits['hit_wall']:.2f}, "
+        f"obstacle {hits['hit_obstacle']:.2f}); "
+        f"per episode: waits {report['waits_per_episode']:.1f}, steps aside {report['escapes_per_episode']:.2f}, "
+        f"guard stops {report['guard_stops_per_episode']:.2f}",
+        f"mean steps per item {report['mean_steps_per_item'] or float('nan'):.1f} against the bound D/(v_max dt) "
+        f"{report['mean_bound_steps']:.1f}: excess {excess} (mean of the per-item ratios, delivered episodes)",
+        "item  episodes  delivered  mean_steps  bound  strict  excess%",
+    ]
+    for item in report["per_item"]:
+        steps = "-" if item["mean_steps"] is None else f"{item['mean_steps']:.1f}"
+        excess = "-" if item["excess_pct"] is None else f"{item['excess_pct']:+.1f}"
+        lines.append(f"{item['item']:4d}  {item['episodes']:8d}  {item['delivered']:9d}  {steps:>10}  "
+                     f"{item['bound_steps']:5.1f}  {item['strict_bound_steps']:6.1f}  {excess:>7}")
+    return "\n".join(lines)
+
+
 def format_report(report: dict[str, Any]) -> str:
+    if report.get("family") == "continuous":
+        return format_pursuit_report(report)
     tp, bound = report["throughput"], report["upper_bound"]
     low, high = tp["ci95"]
     interval = "n/a (one episode)" if low is None else f"[{low:.4f}, {high:.4f}]"
@@ -99,7 +175,15 @@ def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     apply_xla_opt_level(args.xla_opt_level)
     try:
-        report = run_plan(args.planner, args.env, args.num_robots, args.episodes, args.horizon, args.seed)
+        if check_family(args.planner, args.env) == "continuous":
+            for flag, value in (("--num-robots", args.num_robots), ("--horizon", args.horizon)):
+                if value is not None:
+                    raise ValueError(f"{flag} is for fleets; pure pursuit drives one robot for the env's max_steps")
+            report = run_pursuit_plan(args.env, args.episodes, args.seed, args.randomize)
+        else:
+            if args.randomize:
+                raise ValueError("--randomize is for continuous environments (--planner pursuit)")
+            report = run_plan(args.planner, args.env, args.num_robots, args.episodes, args.horizon, args.seed)
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
