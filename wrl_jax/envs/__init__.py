@@ -26,3 +26,11 @@ register("Continuous-Warehouse-12x12-v0", "wrl_jax.envs.continuous.registration:
          map_name="12x12")
 register("Continuous-Warehouse-12x12-Dynamic-v0", "wrl_jax.envs.continuous.registration:make_named",
          family="continuous", map_name="12x12", dynamic=True)
+
+# rware 2.0.0's ids, as `import rware` registers them: 4 sizes x 3 request-queue sizes x 1..19 agents.
+for _size in ("tiny", "small", "medium", "large"):
+    for _difficulty in ("-easy", "", "-hard"):
+        for _agents in range(1, 20):
+            register(f"rware-{_size}-{_agents}ag{_difficulty}-v2", "wrl_jax.envs.rware.registration:make_named",
+                     family="rware", size=_size, agents=_agents, difficulty=_difficulty)
+del _size, _difficulty, _agents

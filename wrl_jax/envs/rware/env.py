@@ -1,0 +1,177 @@
+"""The RWARE environment class: rware 2.0.0's multi-robot warehouse as a wrl_jax (gymnax 1.0) environment.
+
+The MDP is :mod:`wrl_jax.envs.rware.dynamics` (reset, the step deterministic in its
+replacement draws), the move graph :mod:`wrl_jax.envs.rware.conflicts`, the observation
+:mod:`wrl_jax.envs.rware.observation`; this module wraps them. Build it with
+:func:`wrl_jax.envs.rware.registration.make_rware` or ``wrl_jax.make("rware-tiny-4ag-v2")``.
+
+Conventions against rware's Gymnasium surface: one ``(N,)`` int32 action vector (with
+messages ``(N, 1 + M)``: the action, then the bits), ``(N, D)`` float32 observations,
+``(N,)`` float32 rewards, and rware's single ``done`` reported as ``truncated`` (its time and
+inactivity limits are cut-offs, not terminal states), ``terminated`` always False.
+"""
+
+from __future__ import annotations
+
+from types import MappingProxyType
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from wrl_jax.core.environment import Environment
+from wrl_jax.core.gymnax_base import spaces
+from wrl_jax.envs.rware.dynamics import draw_replacements, draw_reset, rware_reset, transition_and_grids
+from wrl_jax.envs.rware.observation import observation_size, rware_observation
+from wrl_jax.envs.rware.types import NUM_ACTIONS, RwareParams, RwareState
+
+
+class MultiDiscrete(spaces.Space):
+    """``shape`` independent integer choices in ``0..n-1`` (gymnax has no MultiDiscrete)."""
+
+    def __init__(self, n: int, shape: tuple[int, ...]):
+        self.n, self.shape, self.dtype = int(n), tuple(shape), jnp.int32
+
+    def sample(self, rng: jax.Array) -> jax.Array:
+        return jax.random.randint(rng, self.shape, 0, self.n, dtype=self.dtype)
+
+    def contains(self, x: jax.Array) -> jax.Array:
+        x = jnp.asarray(x)
+        return jnp.logical_and(x.shape == self.shape, jnp.all((x >= 0) & (x < self.n)))
+
+
+class Rware(Environment[RwareState, RwareParams]):
+    """``N`` robots fetching requested shelves to goal cells (rware 2.0.0).
+
+    Static configuration: the grid, shelf and goal counts (from ``params``), ``num_agents``,
+    ``queue_size`` (rware's ``request_queue_size``), ``sensor_range``, ``msg_bits`` and
+    ``normalised_coordinates``. ``info`` holds ``delivered`` (per agent: it stood on a goal
+    that paid), ``moved``, ``time_limit`` and ``inactivity_limit``.
+    """
+
+    family = "rware"
+    event_metrics = MappingProxyType({"delivered": "deliveries_sum"})
+
+    def __init__(self, params: RwareParams, num_agents: int, queue_size: int, *, sensor_range: int = 1,
+                 msg_bits: int = 0, normalised_coordinates: bool = False, name: str = "rware"):
+        self.height, self.width = (int(v) for v in params.highway.shape)
+        self.num_shelves = int(params.shelf_home.shape[0])
+        self.num_goals = int(params.goals.shape[0])
+        self.num_agents = int(num_agents)
+        self.queue_size = int(queue_size)
+        self.sensor_range = int(sensor_range)
+        self.msg_bits = int(msg_bits)
+        self.normalised_coordinates = bool(normalised_coordinates)
+        self._name = name
+        super().__init__(params)
+
+    def static_config(self) -> tuple:
+        """The shapes and switches of the programs; not the name, so ids of one shape share their programs."""
+        return (self.height, self.width, self.num_shelves, self.num_goals, self.num_agents, self.queue_size,
+                self.sensor_range, self.msg_bits, self.normalised_coordinates)
+
+    @property
+    def name(self) -> str:
+        return self._name
+
+    @property
+    def num_robots(self) -> int:
+        """The fleet's name for :attr:`num_agents`, read by tools written for multi-robot fleets."""
+        return self.num_agents
+
+    @property
+    def num_actions(self) -> int:
+        return NUM_ACTIONS
+
+    @property
+    def obs_size(self) -> int:
+        return observation_size(self.sensor_range, self.msg_bits)
+
+    def __repr__(self) -> str:
+        return (f"Rware({self._name!r}, grid={self.height}x{self.width}, num_agents={self.num_agents}, "
+                f"shelves={self.num_shelves}, queue_size={self.queue_size}, sensor_range={self.sensor_range}, "
+                f"msg_bits={self.msg_bits})")
+
+    # ---------------------------------------------------------- gymnax hooks
+    def reset_env(self, key: jax.Array, params: RwareParams) -> tuple[jax.Array, RwareState]:
+        cells, headings, queue = draw_reset(key, params, self.num_agents, self.queue_size)
+        state = rware_reset(cells, headings, queue, params, self.msg_bits)
+        return self.get_obs(state, params), state
+
+    def transition(self, key: jax.Array, state: RwareState, action: Any, params: RwareParams):
+        self.check_action(action)
+        return self.transition_with(state, action, draw_replacements(key, params, self.queue_size), params)
+
+    def transition_with(self, state: RwareState, action: Any, replacements: jax.Array, params: RwareParams):
+        """:meth:`transition` with the replacement draws given (``(G,)`` int32, see :mod:`.dynamics`).
+
+        The deterministic core: parity tests feed it the draws rware made.
+        """
+        self.check_action(action)
+        action = jnp.asarray(action, jnp.int32)
+        message = None
+        if self.msg_bits:
+            action, message = action[:, 0], action[:, 1:].astype(jnp.float32)
+        state, reward, done, info, layers = transition_and_grids(state, action, jnp.asarray(replacements, jnp.int32),
+                                                                 params, message)
+        obs = rware_observation(state, params, self.sensor_range, self.normalised_coordinates, layers)
+        return obs, state, reward, jnp.zeros((), bool), done, info
+
+    def get_obs(self, state: RwareState, params: RwareParams | None = None, key: jax.Array | None = None):
+        params = self.default_params if params is None else params
+        return rware_observation(state, params, self.sensor_range, self.normalised_coordinates)
+
+    def is_truncated(self, state: RwareState, params: RwareParams) -> jax.Array:
+        time_up = (params.max_steps > 0) & (state.time >= params.max_steps)
+        idle = (params.max_inactivity_steps > 0) & (state.inactive >= params.max_inactivity_steps)
+        return time_up | idle
+
+    def check_action(self, action: Any) -> None:
+        """Raise ``ValueError`` for a concrete action of the wrong shape, dtype or range (no-op on tracers)."""
+        if isinstance(action, jax.core.Tracer):
+            return
+        array = np.asarray(action)
+        shape = (self.num_agents, 1 + self.msg_bits) if self.msg_bits else (self.num_agents,)
+        if array.shape != shape:
+            what = "an action and its message bits" if self.msg_bits else "one action"
+            raise ValueError(f"action must have shape {shape}, {what} per agent; got shape {array.shape}")
+        if not np.issubdtype(array.dtype, np.integer):
+            raise ValueError(f"action must be integers; got dtype {array.dtype}")
+        moves = array[:, 0] if self.msg_bits else array
+        bad = np.flatnonzero((moves < 0) | (moves >= NUM_ACTIONS))
+        if bad.size:
+            raise ValueError(f"action {int(moves[bad[0]])} of agent {int(bad[0])} is outside 0..4 "
+                             f"(0 noop, 1 forward, 2 left, 3 right, 4 toggle load)")
+        if self.msg_bits and np.any((array[:, 1:] < 0) | (array[:, 1:] > 1)):
+            raise ValueError("message bits must be 0 or 1")
+
+    # ---------------------------------------------------------- spaces
+    def action_space(self, params: RwareParams | None = None) -> spaces.Discrete:
+        """Per agent: ``Discrete(5)`` (without messages); the joint action is :meth:`multi_action_space`."""
+        return spaces.Discrete(NUM_ACTIONS)
+
+    def multi_action_space(self, params: RwareParams | None = None) -> MultiDiscrete:
+        if self.msg_bits:
+            raise ValueError("with msg_bits > 0 the action is (N, 1 + msg_bits): 0..4, then bits 0..1")
+        return MultiDiscrete(NUM_ACTIONS, (self.num_agents,))
+
+    def observation_space(self, params: RwareParams | None = None) -> spaces.Box:
+        """rware's ``Box(-inf, inf)`` per agent, stacked: ``(N, D)`` float32."""
+        return spaces.Box(-jnp.inf, jnp.inf, (self.num_agents, self.obs_size), jnp.float32)
+
+    def state_space(self, params: RwareParams | None = None) -> spaces.Dict:
+        n, s = self.num_agents, self.num_shelves
+        return spaces.Dict({
+            "agent_x": spaces.Box(0, self.width - 1, (n,), jnp.int32),
+            "agent_y": spaces.Box(0, self.height - 1, (n,), jnp.int32),
+            "agent_dir": spaces.Box(0, 3, (n,), jnp.int32),
+            "carrying": spaces.Box(-1, s - 1, (n,), jnp.int32),
+            "has_delivered": spaces.Box(0, 1, (n,), jnp.bool_),
+            "message": spaces.Box(0, 1, (n, self.msg_bits), jnp.float32),
+            "shelf_x": spaces.Box(0, self.width - 1, (s,), jnp.int32),
+            "shelf_y": spaces.Box(0, self.height - 1, (s,), jnp.int32),
+            "queue": spaces.Box(0, s - 1, (self.queue_size,), jnp.int32),
+            "time": spaces.Discrete(np.iinfo(np.int32).max),
+            "inactive": spaces.Discrete(np.iinfo(np.int32).max),
+        })
