@@ -136,3 +136,39 @@ def test_buffer_is_a_pytree_that_vmaps():
         assert set(np.asarray(samples.obs[s, :, 0]).tolist()) <= {100.0 * s, 100.0 * s + 1}
     leaves = jax.tree.leaves(bufs)
     assert len(leaves) == 7  # five data arrays, position, size
+
+
+def test_n_step_sample_sums_rewards_of_the_same_env_and_stops_at_episode_ends():
+    """Two environments write rows alternately (stride 2). Env 0's rewards are 1, 2, 4, 8, 16 with its
+    episode truncated after the second; env 1's are 100, 200, ... never ending."""
+    from wrl_jax.agents.replay import n_step_sample
+
+    buffer = ReplayBuffer.empty(16, 1, truncation=True)
+    for t in range(5):
+        buffer = buffer.add(Transition(
+            obs=jnp.array([[10.0 * t], [10.0 * t + 1]]), action=jnp.zeros(2, jnp.int32),
+            reward=jnp.array([2.0**t, 100.0 * (t + 1)]), next_obs=jnp.array([[10.0 * t + 5], [10.0 * t + 6]]),
+            terminated=jnp.zeros(2, bool), truncated=jnp.array([t == 1, False])))
+    batch, discount = n_step_sample(buffer, jax.random.key(0), 256, 3, 2, jnp.float32(0.5))
+    obs, reward, next_obs, discount = (np.asarray(x) for x in (batch.obs[:, 0], batch.reward, batch.next_obs[:, 0],
+                                                               discount))
+    expected = {  # first obs -> (n-step reward, next_obs, discount)
+        0.0: (1 + 0.5 * 2, 15.0, 0.25),           # stops after the truncation at t = 1
+        10.0: (2.0, 15.0, 0.5),                   # the truncated step itself
+        20.0: (4 + 0.5 * 8 + 0.25 * 16, 45.0, 0.125),
+        30.0: (8 + 0.5 * 16, 45.0, 0.25),         # row t = 5 is not written yet
+        40.0: (16.0, 45.0, 0.5),
+        1.0: (100 + 0.5 * 200 + 0.25 * 300, 26.0, 0.125),
+        41.0: (500.0, 46.0, 0.5),
+    }
+    assert set(expected) <= set(obs.tolist())
+    for first, (total, last, factor) in expected.items():
+        rows = obs == first
+        np.testing.assert_allclose(reward[rows], total)
+        np.testing.assert_allclose(next_obs[rows], last)
+        np.testing.assert_allclose(discount[rows], factor)
+    one, gamma = n_step_sample(buffer, jax.random.key(0), 8, 1, 2, jnp.float32(0.5))
+    plain = buffer.sample(jax.random.key(0), 8)
+    assert all(np.array_equal(a, b) for a, b in zip(jax.tree_util.tree_leaves(one), jax.tree_util.tree_leaves(plain)))
+    with pytest.raises(ValueError, match="truncation=True"):
+        n_step_sample(ReplayBuffer.empty(4, 1), jax.random.key(0), 2, 3, 1, jnp.float32(0.5))

@@ -9,7 +9,9 @@ Both are off-policy actor-critics on a box of actions (rejax's shape: this base 
    (``info["final_obs"]``) and only ``terminated`` stopping the bootstrap: a time-limit
    truncation is bootstrapped like any other step.
 2. Once learning has started, ``gradient_steps`` gradient steps (:meth:`gradient_step`), each
-   on a uniform batch from the buffer.
+   on a uniform batch from the buffer; with ``n_step > 1`` each sampled transition is extended to
+   the discounted rewards of up to ``n`` steps of its environment (stopping at its episode's end),
+   bootstrapped with ``gamma ** steps`` (:func:`~wrl_jax.agents.replay.n_step_sample`).
 
 Networks work in the unit box ``[-1, 1]^A`` (a tanh output); :meth:`to_env` maps it affinely onto
 the environment's box, and the buffer stores unit actions. The twin critics are one parameter
@@ -42,7 +44,7 @@ from wrl_jax.agents.common import count_events, polyak_update
 from wrl_jax.agents.initializers import init_mlp_params
 from wrl_jax.agents.networks import ACTIVATIONS, mlp_forward_flops
 from wrl_jax.agents.off_policy_config import OffPolicyConfig
-from wrl_jax.agents.replay import ReplayBuffer, Transition
+from wrl_jax.agents.replay import ReplayBuffer, Transition, n_step_sample
 from wrl_jax.core.environment import Environment
 
 
@@ -168,6 +170,13 @@ class OffPolicyActorCritic(Algorithm[OffPolicyRunner]):
                                                 critic_spec, critic_spec])
         return actor, jax.tree.map(lambda a, b: jnp.stack([a, b]), *critics)
 
+    def sample_batch(self, runner: OffPolicyRunner, key: jax.Array) -> tuple[Transition, jax.Array]:
+        """A batch of (n-step) transitions and each one's bootstrap discount (``gamma ** steps``)."""
+        config = self.config
+        if config.n_step == 1:
+            return runner.buffer.sample(key, config.batch_size), runner.hyper.gamma
+        return n_step_sample(runner.buffer, key, config.batch_size, config.n_step, config.num_envs, runner.hyper.gamma)
+
     def adam_step(self, params: Any, grads: Any, opt_state: Any, learning_rate: jax.Array) -> tuple[Any, Any]:
         updates, opt_state = self.optimizer.update(grads, opt_state, params)
         return jax.tree.map(lambda p, u: p - learning_rate * u, params, updates), opt_state
@@ -189,7 +198,8 @@ class OffPolicyActorCritic(Algorithm[OffPolicyRunner]):
             critic_opt=self.optimizer.init(critic),
             log_alpha=log_alpha,
             alpha_opt=self.optimizer.init(log_alpha) if not self.uses_actor_target else {},
-            buffer=ReplayBuffer.empty(config.buffer_size, self.obs_size, self.action_size),
+            buffer=ReplayBuffer.empty(config.buffer_size, self.obs_size, self.action_size,
+                                      truncation=config.n_step > 1),
             env_state=env_state,
             obs=obs,
             episode_stats=EpisodeStats.zeros(config.num_envs),
@@ -208,8 +218,9 @@ class OffPolicyActorCritic(Algorithm[OffPolicyRunner]):
                             lambda: self.exploring_unit_action(runner, policy_key, runner.obs))
         obs, env_state, reward, terminated, truncated, info = self.env.batch_step(
             env_key, runner.env_state, self.to_env(unit), runner.env_params)
-        buffer = runner.buffer.add(Transition(obs=runner.obs, action=unit, reward=reward,
-                                              next_obs=info["final_obs"], terminated=terminated))
+        buffer = runner.buffer.add(Transition(obs=runner.obs, action=unit, reward=reward, next_obs=info["final_obs"],
+                                              terminated=terminated,
+                                              truncated=truncated if config.n_step > 1 else None))
         stats, sums = track_episodes(runner.episode_stats, reward, terminated, truncated)
         runner = runner.replace(key=key, buffer=buffer, env_state=env_state, obs=obs, episode_stats=stats)
         return runner, (sums, count_events(self.env, info))

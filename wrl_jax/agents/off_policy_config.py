@@ -62,6 +62,8 @@ class OffPolicyConfig:
         train_freq: vector steps collected per update.
         gradient_steps: gradient steps per update (once ``learning_starts`` is passed).
         learning_starts: transitions collected with uniformly random actions before learning.
+        n_step: rewards summed per learning target (1: the one-step target; more carries rewards
+            back faster, stopping at an episode's end).
         adam_eps: Adam's epsilon.
 
     Traced:
@@ -83,6 +85,7 @@ class OffPolicyConfig:
     train_freq: int = 1
     gradient_steps: int = 1
     learning_starts: int = 5_000
+    n_step: int = 1
     adam_eps: float = 1e-8
     # traced
     learning_rate: float = 3e-4
@@ -114,7 +117,7 @@ class OffPolicyConfig:
         """Raise a ``ValueError`` naming the first problem, before anything compiles."""
         owner = self.owner
         check_positive_ints(owner, self, ("total_timesteps", "num_envs", "buffer_size", "batch_size", "train_freq",
-                                          "gradient_steps", *self.extra_positive_ints()))
+                                          "gradient_steps", "n_step", *self.extra_positive_ints()))
         starts = self.learning_starts
         if isinstance(starts, bool) or not isinstance(starts, int) or starts < 0:
             raise ValueError(f"{owner}.learning_starts must be a non-negative integer, got {starts!r}")

@@ -34,6 +34,8 @@ class Transition:
             (before any automatic reset).
         terminated: ``(B,)`` bool, True where the episode ended in a terminal state
             (no bootstrap). A truncation is *not* a termination.
+        truncated: ``(B,)`` bool where the episode was cut off, or ``None`` (not stored): what
+            n-step returns need to stop at an episode's end (:func:`n_step_sample`).
     """
 
     obs: jax.Array
@@ -41,6 +43,7 @@ class Transition:
     reward: jax.Array
     next_obs: jax.Array
     terminated: jax.Array
+    truncated: jax.Array | None = None
 
 
 @struct.dataclass
@@ -63,11 +66,13 @@ class ReplayBuffer:
         return self.data.reward.shape[-1]
 
     @classmethod
-    def empty(cls, capacity: int, obs_size: int, action_size: int | None = None) -> "ReplayBuffer":
+    def empty(cls, capacity: int, obs_size: int, action_size: int | None = None,
+              truncation: bool = False) -> "ReplayBuffer":
         """A buffer of ``capacity`` zeroed rows, none of them filled.
 
         ``action_size=None`` stores discrete actions (int32 indices); an integer
-        stores continuous ones (float32 vectors of that length).
+        stores continuous ones (float32 vectors of that length). ``truncation``
+        also stores the ``truncated`` flags (for n-step returns).
         """
         if int(capacity) < 1:
             raise ValueError(f"replay buffer capacity must be a positive integer, got {capacity}")
@@ -86,6 +91,7 @@ class ReplayBuffer:
             reward=jnp.zeros((capacity,), jnp.float32),
             next_obs=jnp.zeros((capacity, obs_size), jnp.float32),
             terminated=jnp.zeros((capacity,), bool),
+            truncated=jnp.zeros((capacity,), bool) if truncation else None,
         )
         return cls(data=data, position=jnp.zeros((), jnp.int32), size=jnp.zeros((), jnp.int32))
 
@@ -121,3 +127,38 @@ class ReplayBuffer:
         bits = jax.random.bits(key, (batch_size,), jnp.uint32)
         rows = (bits % jnp.maximum(self.size, 1).astype(jnp.uint32)).astype(jnp.int32)
         return jax.tree.map(lambda store: store[rows], self.data)
+
+
+def n_step_sample(buffer: ReplayBuffer, key: jax.Array, batch_size: int, n: int, stride: int,
+                  gamma: jax.Array) -> tuple[Transition, jax.Array]:
+    """Uniform rows, each extended to an n-step transition: ``(batch, discount)``.
+
+    Rows are written ``stride`` (the number of environments) at a time, so row ``r + k stride`` is
+    the same environment's ``k``-th next transition. From a sampled row the rewards of up to ``n``
+    transitions are summed, discounted, stopping after the first that ended its episode
+    (terminated or truncated) and before any row not yet written; ``next_obs`` and ``terminated``
+    are the last one's, and ``discount`` is ``gamma ** steps`` for the bootstrap. With ``n = 1``
+    this is :meth:`ReplayBuffer.sample` with ``discount = gamma``. The buffer must store
+    ``truncated`` (``ReplayBuffer.empty(..., truncation=True)``).
+    """
+    if buffer.data.truncated is None:
+        raise ValueError("n-step returns need a buffer that stores truncations: ReplayBuffer.empty(..., truncation=True)")
+    capacity = buffer.capacity
+    bits = jax.random.bits(key, (batch_size,), jnp.uint32)
+    rows = (bits % jnp.maximum(buffer.size, 1).astype(jnp.uint32)).astype(jnp.int32)
+    newer = (buffer.position - 1 - rows) % capacity  # rows written after each sampled row
+    data = buffer.data
+    first = jax.tree.map(lambda store: store[rows], data)
+    ended = first.terminated | first.truncated
+    total, discount, last = first.reward, jnp.full((batch_size,), 1.0, jnp.float32) * gamma, first
+    for k in range(1, n):
+        later = (rows + k * stride) % capacity
+        take = ~ended & (k * stride <= newer)
+        step = jax.tree.map(lambda store: store[later], data)
+        total = total + jnp.where(take, discount * step.reward, 0.0)
+        discount = jnp.where(take, discount * gamma, discount)
+        last = jax.tree.map(lambda new, old: jnp.where(take.reshape(-1, *([1] * (new.ndim - 1))), new, old), step, last)
+        ended = ended | (take & (step.terminated | step.truncated))
+    batch = Transition(obs=first.obs, action=first.action, reward=total, next_obs=last.next_obs,
+                       terminated=last.terminated, truncated=last.truncated)
+    return batch, discount

@@ -4,6 +4,7 @@ The loop (collection, replay, the learning-starts switch) is
 :class:`~wrl_jax.agents.off_policy.OffPolicyActorCritic`'s; this module is SAC's gradient step:
 
 1. **Critics**: both towards ``r + gamma * (1 - terminated) * (min_j Q'_j(s', a') - alpha log pi(a'|s'))``
+   (with ``n_step``: the discounted sum of up to ``n`` rewards and ``gamma ** steps``)
    with ``a' ~ pi(.|s')`` and the target critics ``Q'`` (Polyak copies), squared error.
 2. **Actor**: minimize ``alpha log pi(a|s) - min_j Q_j(s, a)`` with ``a ~ pi(.|s)`` reparameterized,
    through the critics just updated.
@@ -80,14 +81,14 @@ class SAC(OffPolicyActorCritic):
     def gradient_step(self, runner: OffPolicyRunner, key: jax.Array, index: jax.Array) -> tuple[OffPolicyRunner, Metrics]:
         hyper: SACHyper = runner.hyper
         batch_key, next_key, actor_key = jax.random.split(key, 3)
-        batch = runner.buffer.sample(batch_key, self.config.batch_size)
+        batch, discount = self.sample_batch(runner, batch_key)
         alpha = jnp.exp(runner.log_alpha)
 
         next_action, next_log_prob = self.sample_unit(runner.actor, batch.next_obs, next_key)
         next_q = self.critic_values(runner.critic_target, batch.next_obs, next_action).min(axis=0)
         not_terminal = 1.0 - batch.terminated.astype(jnp.float32)
         target = jax.lax.stop_gradient(
-            hyper.reward_scale * batch.reward + hyper.gamma * not_terminal * (next_q - alpha * next_log_prob))
+            hyper.reward_scale * batch.reward + discount * not_terminal * (next_q - alpha * next_log_prob))
 
         def critic_loss(critic):
             q = self.critic_values(critic, batch.obs, batch.action)

@@ -51,14 +51,14 @@ class TD3(OffPolicyActorCritic):
     def gradient_step(self, runner: OffPolicyRunner, key: jax.Array, index: jax.Array) -> tuple[OffPolicyRunner, Metrics]:
         hyper: TD3Hyper = runner.hyper
         batch_key, noise_key = jax.random.split(key)
-        batch = runner.buffer.sample(batch_key, self.config.batch_size)
+        batch, discount = self.sample_batch(runner, batch_key)
 
         next_action = self.deterministic_unit_action(runner.actor_target, batch.next_obs)
         noise = hyper.policy_noise * jax.random.normal(noise_key, next_action.shape, jnp.float32)
         next_action = jnp.clip(next_action + jnp.clip(noise, -hyper.noise_clip, hyper.noise_clip), -1.0, 1.0)
         next_q = self.critic_values(runner.critic_target, batch.next_obs, next_action).min(axis=0)
         not_terminal = 1.0 - batch.terminated.astype(jnp.float32)
-        target = jax.lax.stop_gradient(hyper.reward_scale * batch.reward + hyper.gamma * not_terminal * next_q)
+        target = jax.lax.stop_gradient(hyper.reward_scale * batch.reward + discount * not_terminal * next_q)
 
         def critic_loss(critic):
             q = self.critic_values(critic, batch.obs, batch.action)
