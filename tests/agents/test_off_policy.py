@@ -165,3 +165,18 @@ def test_flops_count_both_phases(corridor):
     assert actor == 2 * (19 * 64 + 64 * 64 + 64 * 4) and critic == 2 * (21 * 64 + 64 * 64 + 64)
     assert sac.flops_per_update() == 2 * 64 * (4 * actor + 14 * critic) + 8 * actor
     assert 0 < td3.gradient_step_flops() < sac.gradient_step_flops()
+
+
+@pytest.mark.parametrize("rho", [0.0, 0.9])
+def test_correlated_exploration_keeps_its_direction(corridor, rho):
+    """Warm-up actions: with ``noise_correlation`` 0.9 each env's action follows the last one (lag-1
+    correlation near 0.9, still spread over the whole box); with 0 they are independent."""
+    env, params = corridor
+    config = tiny(SACConfig, noise_correlation=rho).replace(train_freq=200, learning_starts=10_000,
+                                                            total_timesteps=8 * 200)
+    algo = SAC(config, env, params)
+    runner, _ = jax.jit(algo.update)(algo.init(jax.random.key(0)), 0)
+    actions = np.asarray(runner.buffer.data.action[: 8 * 200]).reshape(200, 8, 2)
+    lag1 = np.mean([np.corrcoef(actions[:-1, e, d], actions[1:, e, d])[0, 1] for e in range(8) for d in range(2)])
+    assert (lag1 > 0.75) if rho else (abs(lag1) < 0.15), lag1
+    assert actions.min() < -0.9 and actions.max() > 0.9

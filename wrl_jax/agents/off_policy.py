@@ -4,7 +4,10 @@ Both are off-policy actor-critics on a box of actions (rejax's shape: this base 
 :mod:`wrl_jax.agents.sac` and :mod:`wrl_jax.agents.td3` write their losses). One update of one seed:
 
 1. ``train_freq`` vector steps of ``num_envs`` environments; actions are uniform in the box until
-   ``learning_starts`` transitions were collected, then the learner's exploring policy. Every
+   ``learning_starts`` transitions were collected, then the learner's exploring policy. With
+   ``noise_correlation`` ``rho > 0`` the exploration noise is an AR(1) process, Gaussian at every
+   step but correlated in time (the "colored noise" of Eberhard et al. 2023): a robot that steers
+   with (v, w) travels instead of jittering in place. Every
    transition goes into the replay buffer with ``next_obs`` taken before the automatic reset
    (``info["final_obs"]``) and only ``terminated`` stopping the bootstrap: a time-limit
    truncation is bootstrapped like any other step.
@@ -23,6 +26,7 @@ of every short run.
 from __future__ import annotations
 
 import abc
+import math
 from typing import Any
 
 import jax
@@ -67,6 +71,7 @@ class OffPolicyRunner:
     buffer: ReplayBuffer
     env_state: Any  # the env family's state, batched over num_envs
     obs: jax.Array  # (num_envs, obs_size)
+    exploration: jax.Array  # (num_envs, A): the standard-normal noise of the last step (correlated exploration)
     episode_stats: EpisodeStats
     key: jax.Array
     hyper: Any
@@ -138,8 +143,9 @@ class OffPolicyActorCritic(Algorithm[OffPolicyRunner]):
         """The policy's deterministic action in the unit box, ``(..., A)``."""
 
     @abc.abstractmethod
-    def exploring_unit_action(self, runner: OffPolicyRunner, key: jax.Array, obs: jax.Array) -> jax.Array:
-        """The action collected once learning has started, in the unit box, ``(num_envs, A)``."""
+    def exploring_unit_action(self, runner: OffPolicyRunner, noise: jax.Array, obs: jax.Array) -> jax.Array:
+        """The action collected once learning has started, in the unit box, ``(num_envs, A)``, from
+        standard-normal ``noise`` ``(num_envs, A)`` (independent per step, or correlated in time)."""
 
     @abc.abstractmethod
     def gradient_step(self, runner: OffPolicyRunner, key: jax.Array, index: jax.Array) -> tuple[OffPolicyRunner, Metrics]:
@@ -202,6 +208,7 @@ class OffPolicyActorCritic(Algorithm[OffPolicyRunner]):
                                       truncation=config.n_step > 1),
             env_state=env_state,
             obs=obs,
+            exploration=jnp.zeros((config.num_envs, self.action_size), jnp.float32),
             episode_stats=EpisodeStats.zeros(config.num_envs),
             key=key,
             hyper=hyper,
@@ -213,16 +220,24 @@ class OffPolicyActorCritic(Algorithm[OffPolicyRunner]):
         """One vector step: act (uniformly before learning starts), step, store the transitions."""
         config = self.config
         key, random_key, policy_key, env_key = jax.random.split(runner.key, 4)
-        uniform = jax.random.uniform(random_key, (config.num_envs, self.action_size), jnp.float32, -1.0, 1.0)
+        shape = (config.num_envs, self.action_size)
+        rho = config.noise_correlation
+        if rho == 0.0:  # independent noise every step
+            uniform = jax.random.uniform(random_key, shape, jnp.float32, -1.0, 1.0)
+            noise = jax.random.normal(policy_key, shape, jnp.float32)
+        else:  # an AR(1) process: still N(0, 1) at every step, but it keeps its direction for ~1/(1-rho) steps
+            noise = rho * runner.exploration + math.sqrt(1.0 - rho * rho) * jax.random.normal(policy_key, shape)
+            uniform = 2.0 * jax.scipy.stats.norm.cdf(noise) - 1.0  # uniform in (-1, 1) at every step, correlated
         unit = jax.lax.cond(timestep < config.learning_starts, lambda: uniform,
-                            lambda: self.exploring_unit_action(runner, policy_key, runner.obs))
+                            lambda: self.exploring_unit_action(runner, noise, runner.obs))
         obs, env_state, reward, terminated, truncated, info = self.env.batch_step(
             env_key, runner.env_state, self.to_env(unit), runner.env_params)
         buffer = runner.buffer.add(Transition(obs=runner.obs, action=unit, reward=reward, next_obs=info["final_obs"],
                                               terminated=terminated,
                                               truncated=truncated if config.n_step > 1 else None))
         stats, sums = track_episodes(runner.episode_stats, reward, terminated, truncated)
-        runner = runner.replace(key=key, buffer=buffer, env_state=env_state, obs=obs, episode_stats=stats)
+        runner = runner.replace(key=key, buffer=buffer, env_state=env_state, obs=obs, episode_stats=stats,
+                                exploration=noise)
         return runner, (sums, count_events(self.env, info))
 
     def _train(self, runner: OffPolicyRunner, first_index: jax.Array) -> tuple[OffPolicyRunner, Metrics]:

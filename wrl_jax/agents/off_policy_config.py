@@ -62,6 +62,8 @@ class OffPolicyConfig:
         train_freq: vector steps collected per update.
         gradient_steps: gradient steps per update (once ``learning_starts`` is passed).
         learning_starts: transitions collected with uniformly random actions before learning.
+        noise_correlation: ``rho`` in [0, 1): the exploration noise is ``rho`` times the last
+            step's plus fresh noise (0: independent every step).
         n_step: rewards summed per learning target (1: the one-step target; more carries rewards
             back faster, stopping at an episode's end).
         adam_eps: Adam's epsilon.
@@ -86,6 +88,7 @@ class OffPolicyConfig:
     gradient_steps: int = 1
     learning_starts: int = 5_000
     n_step: int = 1
+    noise_correlation: float = 0.0
     adam_eps: float = 1e-8
     # traced
     learning_rate: float = 3e-4
@@ -138,6 +141,9 @@ class OffPolicyConfig:
         check_hyper(f"{owner}", **{name: getattr(self, name) for name in names})
         if self.adam_eps <= 0:
             raise ValueError(f"{owner}.adam_eps must be positive, got {self.adam_eps}")
+        rho = self.noise_correlation
+        if isinstance(rho, bool) or not isinstance(rho, (int, float)) or not 0.0 <= rho < 1.0:
+            raise ValueError(f"{owner}.noise_correlation must be in [0, 1), got {rho!r}")
 
     def extra_positive_ints(self) -> tuple[str, ...]:
         return ()

@@ -60,7 +60,10 @@ class SAC(OffPolicyActorCritic):
     def sample_unit(self, actor: Any, obs: jax.Array, key: jax.Array) -> tuple[jax.Array, jax.Array]:
         """A reparameterized sample in the unit box and the log-density of its environment action."""
         mean, log_std = self.gaussian(actor, obs)
-        noise = jax.random.normal(key, mean.shape, jnp.float32)
+        return self.squash(mean, log_std, jax.random.normal(key, mean.shape, jnp.float32))
+
+    def squash(self, mean: jax.Array, log_std: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """``tanh(mean + std * noise)`` and the log-density of its environment action."""
         u = mean + jnp.exp(log_std) * noise
         gaussian_log_prob = -0.5 * jnp.square(noise) - log_std - 0.5 * math.log(2 * math.pi)
         # log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u)), exact and stable for large |u|.
@@ -71,8 +74,8 @@ class SAC(OffPolicyActorCritic):
     def deterministic_unit_action(self, actor: Any, obs: jax.Array) -> jax.Array:
         return jnp.tanh(self.gaussian(actor, obs)[0])
 
-    def exploring_unit_action(self, runner: OffPolicyRunner, key: jax.Array, obs: jax.Array) -> jax.Array:
-        return self.sample_unit(runner.actor, obs, key)[0]
+    def exploring_unit_action(self, runner: OffPolicyRunner, noise: jax.Array, obs: jax.Array) -> jax.Array:
+        return self.squash(*self.gaussian(runner.actor, obs), noise)[0]
 
     def sample_action(self, network_params: Any, obs: jax.Array, key: jax.Array) -> jax.Array:
         return self.to_env(self.sample_unit(network_params, obs, key)[0])

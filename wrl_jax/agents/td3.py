@@ -43,10 +43,9 @@ class TD3(OffPolicyActorCritic):
     def deterministic_unit_action(self, actor: Any, obs: jax.Array) -> jax.Array:
         return jnp.tanh(self.actor_forward(actor, obs))
 
-    def exploring_unit_action(self, runner: OffPolicyRunner, key: jax.Array, obs: jax.Array) -> jax.Array:
+    def exploring_unit_action(self, runner: OffPolicyRunner, noise: jax.Array, obs: jax.Array) -> jax.Array:
         action = self.deterministic_unit_action(runner.actor, obs)
-        noise = runner.hyper.exploration_noise * jax.random.normal(key, action.shape, jnp.float32)
-        return jnp.clip(action + noise, -1.0, 1.0)
+        return jnp.clip(action + runner.hyper.exploration_noise * noise, -1.0, 1.0)
 
     def gradient_step(self, runner: OffPolicyRunner, key: jax.Array, index: jax.Array) -> tuple[OffPolicyRunner, Metrics]:
         hyper: TD3Hyper = runner.hyper
