@@ -180,3 +180,27 @@ def test_correlated_exploration_keeps_its_direction(corridor, rho):
     lag1 = np.mean([np.corrcoef(actions[:-1, e, d], actions[1:, e, d])[0, 1] for e in range(8) for d in range(2)])
     assert (lag1 > 0.75) if rho else (abs(lag1) < 0.15), lag1
     assert actions.min() < -0.9 and actions.max() > 0.9
+
+
+def test_ppo_gaussian_policy_learns_the_corridor(corridor):
+    """PPO with a box of actions: a diagonal Gaussian (learned state-independent spread), the sample's
+    density in the ratio, the mean clipped to the box as the greedy action."""
+    from wrl_jax.agents.ppo import PPO
+    from wrl_jax.agents.ppo_config import PPOConfig
+
+    env, params = corridor
+    config = PPOConfig(num_envs=16, num_steps=32, num_minibatches=4, update_epochs=4, hidden_sizes=(64, 64),
+                       total_timesteps=16 * 32 * 40, learning_rate=3e-3, ent_coef=0.0, gamma=0.99, obs_encoding="raw")
+    algo = PPO(config, env, params)
+    assert algo.action_kind == "continuous"
+    runners, metrics = jax.jit(make_train_seeds(algo))(training.seed_keys(SEEDS))
+    actors = jax.vmap(algo.network_params)(runners)
+    evaluation = jax.tree.map(np.asarray, jax.jit(jax.vmap(
+        lambda p: seed_summary(evaluate_policy(algo.greedy_action, p, env, params))))(actors))
+    print({k: v.tolist() for k, v in evaluation.items()})
+    assert (evaluation["eval_solved"] == 1.0).sum() >= 2
+    mean = algo.forward(jax.tree.map(lambda x: x[0], actors), jnp.zeros((3, algo.num_features)))
+    log_prob = algo.gaussian_log_prob(jax.tree.map(lambda x: x[0], actors), mean, mean + 1.0)
+    std = np.exp(np.asarray(actors["log_std"][0], np.float64))
+    expected = (-0.5 / std**2 - np.log(std) - 0.5 * math.log(2 * math.pi)).sum()
+    np.testing.assert_allclose(np.asarray(log_prob), expected, rtol=1e-5)

@@ -33,10 +33,13 @@ what PPO shares with DQN lives in :mod:`wrl_jax.agents.common`.
 
 from __future__ import annotations
 
+import math
+
 from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 from flax import struct
 
@@ -59,6 +62,7 @@ from wrl_jax.agents.ppo_config import (
 )
 from wrl_jax.agents.ppo_networks import ActorCritic
 from wrl_jax.core.environment import Environment
+from wrl_jax.core.gymnax_base import spaces
 
 
 @struct.dataclass
@@ -97,6 +101,14 @@ class PPO(ActorCritic, Algorithm[PPORunner]):
     name = "ppo"
 
     def __init__(self, config: PPOConfig, env: Environment, env_params: Any):
+        space = env.action_space(env_params)
+        self.continuous = isinstance(space, spaces.Box)
+        self.action_kind = "continuous" if self.continuous else "discrete"
+        if self.continuous:
+            if config.obs_encoding != "raw" or config.encoder != "mlp":
+                raise ValueError(f"PPO on {env.name} (continuous actions) takes obs_encoding='raw' and encoder='mlp'")
+            self.action_low = jnp.asarray(np.broadcast_to(np.asarray(space.low, np.float32), space.shape))
+            self.action_high = jnp.asarray(np.broadcast_to(np.asarray(space.high, np.float32), space.shape))
         super().__init__(config, env, env_params)
         self.adam = optax.scale_by_adam(eps=_ADAM_EPS)
         self.num_agents = getattr(env, "num_agents", None)  # None: single agent, no agent axis
@@ -148,7 +160,9 @@ class PPO(ActorCritic, Algorithm[PPORunner]):
         # docs/architecture.md, "Stepping"), kept so that every published PPO number stays reproducible.
         env_keys = jax.random.split(k_env, cfg.num_steps * cfg.num_envs).reshape(cfg.num_steps, cfg.num_envs, -1)
         agents = () if self.num_agents is None else (self.num_agents,)
-        gumbel = jax.random.gumbel(k_act, (cfg.num_steps, cfg.num_envs, *agents, self.env.num_actions))
+        # Categorical: Gumbel noise, one per action (Gumbel-max); Gaussian: one standard normal per dimension.
+        draw = jax.random.normal if self.continuous else jax.random.gumbel
+        gumbel = draw(k_act, (cfg.num_steps, cfg.num_envs, *agents, self.env.num_actions))
         global_states = jax.vmap(self.env.global_state, in_axes=(0, None)) if self.centralized else None
 
         # 1. rollout
@@ -156,12 +170,18 @@ class PPO(ActorCritic, Algorithm[PPORunner]):
             env_state, obs, stats = carry
             step_keys, step_gumbel = step_inputs
             logits = self.forward(networks["actor"], obs)
-            log_probs = jax.nn.log_softmax(logits)
-            action = jnp.argmax(log_probs + step_gumbel, axis=-1)  # Gumbel-max: a sample of softmax(logits)
-            log_prob = jnp.take_along_axis(log_probs, action[..., None], axis=-1)[..., 0]
+            if self.continuous:  # the sample is learned from; the box receives it clipped
+                action = logits + jnp.exp(networks["actor"]["log_std"]) * step_gumbel
+                log_prob = self.gaussian_log_prob(networks["actor"], logits, action)
+                env_action = jnp.clip(action, self.action_low, self.action_high)
+            else:
+                log_probs = jax.nn.log_softmax(logits)
+                action = jnp.argmax(log_probs + step_gumbel, axis=-1)  # Gumbel-max: a sample of softmax(logits)
+                log_prob = jnp.take_along_axis(log_probs, action[..., None], axis=-1)[..., 0]
+                env_action = action
             next_obs, next_state, reward, terminated, truncated, info = jax.vmap(
                 self.env.step, in_axes=(0, 0, 0, None)
-            )(step_keys, env_state, action, runner.env_params)
+            )(step_keys, env_state, env_action, runner.env_params)
             extras = {}
             if self.num_agents is not None:
                 team_reward = reward.sum(axis=-1)  # an episode's return: the fleet's, summed over robots
@@ -262,8 +282,14 @@ class PPO(ActorCritic, Algorithm[PPORunner]):
         networks = self.unflatten(params)
         inputs = self.network_inputs(networks["actor"], mb["obs"])  # computed once for both networks
         logits = self.forward(networks["actor"], mb["obs"], inputs=inputs)
-        log_probs = jax.nn.log_softmax(logits)
-        log_prob = jnp.take_along_axis(log_probs, mb["action"][..., None], axis=-1)[..., 0]
+        if self.continuous:
+            log_prob = self.gaussian_log_prob(networks["actor"], logits, mb["action"])
+            # A diagonal Gaussian's entropy: the same for every state (its spread is state-independent).
+            entropy = (networks["actor"]["log_std"] + 0.5 * math.log(2 * math.pi * math.e)).sum()
+        else:
+            log_probs = jax.nn.log_softmax(logits)
+            log_prob = jnp.take_along_axis(log_probs, mb["action"][..., None], axis=-1)[..., 0]
+            entropy = -(jnp.exp(log_probs) * log_probs).sum(-1).mean()
         log_ratio = log_prob - mb["log_prob"]
         ratio = jnp.exp(log_ratio)
         advantage = mb["advantage"]
@@ -271,7 +297,6 @@ class PPO(ActorCritic, Algorithm[PPORunner]):
             advantage = (advantage - advantage.mean()) / (advantage.std() + 1e-8)
         clipped = jnp.clip(ratio, 1.0 - hyper.clip_eps, 1.0 + hyper.clip_eps)
         policy_loss = -jnp.minimum(ratio * advantage, clipped * advantage).mean()
-        entropy = -(jnp.exp(log_probs) * log_probs).sum(-1).mean()
         value = self.forward(networks["critic"], mb["obs"], mb.get("global_state"), inputs=inputs)[..., 0]
         value_loss = jnp.square(mb["return"] - value).mean()
         loss = policy_loss - hyper.ent_coef * entropy + hyper.vf_coef * value_loss
@@ -290,13 +315,28 @@ class PPO(ActorCritic, Algorithm[PPORunner]):
         return self.unflatten(runner.params)["actor"]
 
     def greedy_action(self, network_params: Any, obs: jax.Array) -> jax.Array:
-        return jnp.argmax(self.forward(network_params, obs), axis=-1).astype(jnp.int32)
+        """The policy's mode: the most likely action, or the Gaussian's mean clipped to the box."""
+        out = self.forward(network_params, obs)
+        if self.continuous:
+            return jnp.clip(out, self.action_low, self.action_high)
+        return jnp.argmax(out, axis=-1).astype(jnp.int32)
 
     has_stochastic_policy = True
 
     def sample_action(self, network_params: Any, obs: jax.Array, key: jax.Array) -> jax.Array:
-        """A draw from the categorical policy (``obs`` may carry batch axes)."""
-        return jax.random.categorical(key, self.forward(network_params, obs), axis=-1).astype(jnp.int32)
+        """A draw from the policy (``obs`` may carry batch axes), clipped to the box if continuous."""
+        out = self.forward(network_params, obs)
+        if self.continuous:
+            noise = jax.random.normal(key, out.shape, jnp.float32)
+            return jnp.clip(out + jnp.exp(network_params["log_std"]) * noise, self.action_low, self.action_high)
+        return jax.random.categorical(key, out, axis=-1).astype(jnp.int32)
+
+    @staticmethod
+    def gaussian_log_prob(actor: Any, mean: jax.Array, action: jax.Array) -> jax.Array:
+        """Log-density of ``action`` under the diagonal Gaussian of ``mean`` and the actor's log std."""
+        log_std = actor["log_std"]
+        z = (action - mean) * jnp.exp(-log_std)
+        return (-0.5 * jnp.square(z) - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
 
 def gae(
     reward: jax.Array,
@@ -337,7 +377,8 @@ SPEC = AlgoSpec(
     default_preset="default",
     default_num_seeds=4,
     study=STUDY_TABLE3,
-    env_presets={"Procedural-Warehouse-v0": "procedural", "Fleet-12x12-v0": "fleet", "Fleet-32x32-v0": "fleet"},
+    env_presets={"Procedural-Warehouse-v0": "procedural", "Fleet-12x12-v0": "fleet", "Fleet-32x32-v0": "fleet",
+                 **{f"Continuous-Warehouse-{name}": "continuous" for name in ("8x8-v0", "12x12-v0", "12x12-Dynamic-v0")}},
     env_defaults={"Fleet-12x12-v0": FLEET_ENV_DEFAULTS, "Fleet-32x32-v0": FLEET_ENV_DEFAULTS,
                   "Procedural-Warehouse-v0": PROCEDURAL_ENV_DEFAULTS},
 )

@@ -30,6 +30,9 @@ class ActorCritic:
     def setup_networks(self, config: PPOConfig, env: Environment) -> None:
         """The networks' static layout: inputs (encoding, propagation features, global state), shapes."""
         self.activation = ACTIVATIONS[config.activation]
+        # A box of actions: a diagonal Gaussian (the actor gives the mean, a learned state-independent
+        # log standard deviation the spread); otherwise a categorical over env.num_actions.
+        self.policy_outputs = env.num_actions
         self.global_size = int(env.global_state_size()) if config.critic == "centralized" else 0
         self.coordinates = onehot_coordinates(env, config.obs_encoding)
         self.map_layout = None  # (offset, H, W) of the map the propagation encoder plans over
@@ -51,8 +54,10 @@ class ActorCritic:
         sizes = tuple(self.config.hidden_sizes)
         critic_inputs = self.num_features + self.global_size
         actor, critic = init_mlp_params(
-            key, [(self.num_features, sizes, self.env.num_actions, 0.01), (critic_inputs, sizes, 1, 1.0)]
+            key, [(self.num_features, sizes, self.policy_outputs, 0.01), (critic_inputs, sizes, 1, 1.0)]
         )
+        if self.continuous:
+            actor["log_std"] = jnp.zeros((self.policy_outputs,), jnp.float32)
         if self.map_layout is not None:  # one propagation, the actor's, read by both
             actor["propagation"] = propagation.init_propagation()
         return {"actor": actor, "critic": critic}
@@ -130,7 +135,7 @@ class ActorCritic:
     def flops_per_update(self) -> int:
         cfg = self.config
         # The one-hot first layer is a gather-sum, about the cost of a dense layer on the raw values.
-        obs, hidden, actions = agent_observation_size(self.env), tuple(cfg.hidden_sizes), self.env.num_actions
+        obs, hidden, actions = agent_observation_size(self.env), tuple(cfg.hidden_sizes), self.policy_outputs
         if self.map_layout is not None:  # the MLPs see the features, not the map; the actor's propagation
             _, height, width = self.map_layout  # is counted with the actor, the critic shares it
             obs = self.num_features

@@ -68,7 +68,7 @@ def test_same_key_same_bits_other_keys_differ_and_obstacles_move(dynamic):
     assert travelled > 4 * 50 * 0.5 * 0.2 * 0.5  # four obstacles at 0.1 m a step, moving most of the time
 
 
-def test_registered_names_build_and_the_discrete_learners_refuse_them_clearly():
+def test_registered_names_build_and_dqn_refuses_them_clearly():
     import wrl_jax
     from wrl_jax.agents.dqn import DQN
     from wrl_jax.agents.dqn_config import DQNConfig
@@ -78,9 +78,10 @@ def test_registered_names_build_and_the_discrete_learners_refuse_them_clearly():
     env, params = wrl_jax.make("Continuous-Warehouse-12x12-Dynamic-v0")
     assert (env.num_obstacles, int(params.max_steps), env.name) == (4, 500, "Continuous-Warehouse-12x12-Dynamic-v0")
     assert wrl_jax.make("Continuous-Warehouse-8x8-v0")[0].num_obstacles == 0
-    for algorithm, config in ((PPO, PPOConfig()), (DQN, DQNConfig())):
-        with pytest.raises(ValueError, match="acts in a discrete action space; .* takes continuous actions"):
-            algorithm(config, env, params)
+    with pytest.raises(ValueError, match="acts in a discrete action space; .* takes continuous actions"):
+        DQN(DQNConfig(), env, params)
+    with pytest.raises(ValueError, match="obs_encoding='raw' and encoder='mlp'"):  # PPO acts in boxes, with raw inputs
+        PPO(PPOConfig(obs_encoding="onehot"), env, params)
 
 
 def test_the_lidar_reads_closed_squares_at_corners_and_along_grid_lines():
