@@ -78,3 +78,31 @@ def test_stable_baselines3_sac_trains_on_it():
     assert model.num_timesteps == 120 and model.replay_buffer.size() == 120
     action, _ = model.predict(env.reset(seed=0)[0], deterministic=True)
     assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
+
+
+def test_rgb_array_rendering_draws_the_jax_state():
+    import warnings
+
+    from gymnasium.utils.passive_env_checker import env_render_passive_checker
+
+    from wrl_jax.envs.continuous.render import COLORS, lidar_from_obs, render_frame, to_pixel
+
+    env = gym.make("wrl_jax/Continuous-Warehouse-12x12-Dynamic-v0", render_mode="rgb_array", cell_size=8).unwrapped
+    assert env.metadata["render_modes"] == ["rgb_array"] and env.render_mode == "rgb_array"
+    with pytest.raises(RuntimeError, match="reset"):
+        env.render()
+    obs, _ = env.reset(seed=3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # Gymnasium's render checks warn on a problem
+        env_render_passive_checker(env)
+    frame = env.render()
+    assert frame.shape == (96, 96, 3) and frame.dtype == np.uint8
+    expected = render_frame(env._state, env.params, lidar_from_obs(jax.numpy.asarray(obs), env.params), 8)
+    np.testing.assert_array_equal(frame, np.asarray(expected))
+    assert tuple(frame[to_pixel(env._state.pos, 8)]) == COLORS["robot"]
+    env.step(np.array([1.0, 0.5], np.float32))
+    assert not np.array_equal(env.render(), frame)
+    with pytest.warns(UserWarning, match="render_mode"):
+        assert ContinuousGymEnv("Continuous-Warehouse-8x8-v0").render() is None  # no render_mode: nothing drawn
+    with pytest.raises(ValueError, match="render_mode"):
+        ContinuousGymEnv("Continuous-Warehouse-8x8-v0", render_mode="human")

@@ -9,6 +9,9 @@ Randomness: ``reset(seed=s)`` starts a JAX key from ``s`` (or from Gymnasium's `
 no seed is given); the reset and every step split it, so an episode is a function of its seed and
 its actions, and the same key sequence through :meth:`ContinuousWarehouse.transition` gives the same
 numbers (``tests/wrappers/test_gymnasium_continuous.py``).
+
+``render_mode="rgb_array"``: ``render()`` draws the current state with the lidar of the last observation
+(:func:`wrl_jax.envs.continuous.render.render_frame`), one compiled call per frame.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from gymnasium import spaces
 from wrl_jax.core import registry
 from wrl_jax.envs.continuous.dynamics import FLAGS
 from wrl_jax.envs.continuous.env import ContinuousWarehouse
+from wrl_jax.envs.continuous.render import DEFAULT_CELL_SIZE, check_render_cell_size, lidar_from_obs, render_frame
 from wrl_jax.envs.continuous.types import ContinuousParams
 
 
@@ -43,19 +47,31 @@ def _step(env: ContinuousWarehouse, key: jax.Array, state: Any, action: jax.Arra
     return key, obs, state, reward, terminated, truncated, flags
 
 
+@functools.partial(jax.jit, static_argnums=0)
+def _render(cell_size: int, state: Any, obs: jax.Array, params: ContinuousParams) -> jax.Array:
+    return render_frame(state, params, lidar_from_obs(obs, params), cell_size)
+
+
 class ContinuousGymEnv(gym.Env):
     """One continuous warehouse as a ``gymnasium.Env`` (float32 observations, ``Box(-1, 1, (2,))`` actions).
 
     Args:
         name: a registered continuous environment (``Continuous-Warehouse-12x12-Dynamic-v0``...).
+        render_mode: None or ``"rgb_array"`` (``render()`` returns a ``uint8 (H, W, 3)`` frame).
+        cell_size: pixels per metre of the rendered frames.
         **overrides: the family's overrides (``randomize=True``, ``max_steps``...), as ``wrl_jax.make``.
 
     ``info`` holds the contract's flags as Python bools (``collision``, ``picked_up``, ``delivered``...).
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 5}  # 5 steps per second: dt = 0.2 s, real time
 
-    def __init__(self, name: str = "Continuous-Warehouse-12x12-v0", **overrides: Any):
+    def __init__(self, name: str = "Continuous-Warehouse-12x12-v0", render_mode: str | None = None,
+                 cell_size: int = DEFAULT_CELL_SIZE, **overrides: Any):
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
+        self.cell_size = check_render_cell_size(cell_size)
         if registry.entry(name).family != "continuous":
             raise ValueError(f"{name} is not a continuous warehouse; ContinuousGymEnv takes one of "
                              f"{registry.registered_names('continuous')}")
@@ -66,11 +82,13 @@ class ContinuousGymEnv(gym.Env):
         self.action_space = spaces.Box(low=-1.0, high=1.0, shape=(2,), dtype=np.float32)
         self._key = None
         self._state = None
+        self._obs = None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         start = seed if seed is not None else int(self.np_random.integers(0, 2**31 - 1))
         self._key, obs, self._state = _reset(self.jax_env, jax.random.key(start), self.params)
+        self._obs = obs
         return np.asarray(obs, np.float32), {}
 
     def step(self, action: Any):
@@ -81,5 +99,15 @@ class ContinuousGymEnv(gym.Env):
             raise ValueError(f"action must be 2 numbers (v, w) in [-1, 1], got shape {action.shape} dtype {action.dtype}")
         self._key, obs, self._state, reward, terminated, truncated, flags = _step(
             self.jax_env, self._key, self._state, jnp.asarray(action, jnp.float32), self.params)
+        self._obs = obs
         info = {name: bool(flag) for name, flag in zip(FLAGS, np.asarray(flags))}
         return np.asarray(obs, np.float32), float(reward), bool(terminated), bool(truncated), info
+
+    def render(self):
+        """The current state as an RGB frame (``render_mode="rgb_array"``), the last observation's lidar drawn."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array'")
+            return None
+        if self._state is None:
+            raise RuntimeError("call reset() before render()")
+        return np.array(_render(self.cell_size, self._state, self._obs, self.params))
