@@ -23,6 +23,7 @@ import numpy as np
 
 from wrl_jax.core.environment import Environment
 from wrl_jax.core.gymnax_base import spaces
+from wrl_jax.core.spaces import MultiDiscrete
 from wrl_jax.core.observation import (
     bit_windows_supported,
     expand_observations,
@@ -33,21 +34,6 @@ from wrl_jax.core.random import split_key
 from wrl_jax.envs.fleet.dynamics import NUM_ACTIONS, WAIT, draw_tasks, fleet_reset, fleet_transition, only_where
 from wrl_jax.envs.fleet.observation import MEMORY_SIZE, fleet_observation, global_state, observation_parts
 from wrl_jax.envs.fleet.types import FleetParams, FleetState
-
-
-# ----------------------------------------------------------------- spaces
-class MultiDiscrete(spaces.Space):
-    """``shape`` independent integer choices in ``0..n-1`` (gymnax has no MultiDiscrete)."""
-
-    def __init__(self, n: int, shape: tuple[int, ...]):
-        self.n, self.shape, self.dtype = int(n), tuple(shape), jnp.int32
-
-    def sample(self, rng: jax.Array) -> jax.Array:
-        return jax.random.randint(rng, self.shape, 0, self.n, dtype=self.dtype)
-
-    def contains(self, x: jax.Array) -> jax.Array:
-        x = jnp.asarray(x)
-        return jnp.logical_and(x.shape == self.shape, jnp.all((x >= 0) & (x < self.n)))
 
 
 # ----------------------------------------------------------------- the environment

@@ -22,23 +22,10 @@ import numpy as np
 
 from wrl_jax.core.environment import Environment
 from wrl_jax.core.gymnax_base import spaces
+from wrl_jax.core.spaces import MultiDiscrete
 from wrl_jax.envs.rware.dynamics import draw_replacements, draw_reset, rware_reset, transition_and_grids
 from wrl_jax.envs.rware.observation import observation_size, rware_observation
 from wrl_jax.envs.rware.types import NUM_ACTIONS, RwareParams, RwareState
-
-
-class MultiDiscrete(spaces.Space):
-    """``shape`` independent integer choices in ``0..n-1`` (gymnax has no MultiDiscrete)."""
-
-    def __init__(self, n: int, shape: tuple[int, ...]):
-        self.n, self.shape, self.dtype = int(n), tuple(shape), jnp.int32
-
-    def sample(self, rng: jax.Array) -> jax.Array:
-        return jax.random.randint(rng, self.shape, 0, self.n, dtype=self.dtype)
-
-    def contains(self, x: jax.Array) -> jax.Array:
-        x = jnp.asarray(x)
-        return jnp.logical_and(x.shape == self.shape, jnp.all((x >= 0) & (x < self.n)))
 
 
 class Rware(Environment[RwareState, RwareParams]):
