@@ -154,7 +154,7 @@ def report(summary: dict[str, Any]) -> str:
         f"{summary['algo'].upper()} on {summary['env']}: {summary['num_seeds']} seeds x "
         f"{summary['env_steps_per_seed']:,} env steps ({summary['updates_done']}/{summary['num_updates']} updates)",
         f"compile {summary['compile_seconds']:.1f} s | train {summary['train_seconds']:.1f} s | "
-        f"{(sps or 0) / 1e3:,.0f}k env steps/s (all seeds)"
+        f"{_rate(sps or 0)} env steps/s (all seeds)"
         + (
             f" | {gflops:.1f} GFLOP/s = {gflops / summary['cpu_peak_gflops']:.0%} of this machine's "
             f"{summary['cpu_peak_gflops']:.0f} GFLOP/s matmul"
@@ -198,3 +198,12 @@ def main(algo: str, argv: list[str] | None = None) -> int:
     return 0
 
 
+
+
+def _rate(per_second: float) -> str:
+    """``38k``, ``1.2k``, ``640``: a rate with the digits that matter (a slow learner is not ``0k``)."""
+    if per_second >= 10_000:
+        return f"{per_second / 1e3:,.0f}k"
+    if per_second >= 1_000:
+        return f"{per_second / 1e3:.1f}k"
+    return f"{per_second:.0f}"
