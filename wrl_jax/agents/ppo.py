@@ -378,7 +378,8 @@ SPEC = AlgoSpec(
     default_num_seeds=4,
     study=STUDY_TABLE3,
     env_presets={"Procedural-Warehouse-v0": "procedural", "Fleet-12x12-v0": "fleet", "Fleet-32x32-v0": "fleet",
-                 **{f"Continuous-Warehouse-{name}": "continuous" for name in ("8x8-v0", "12x12-v0", "12x12-Dynamic-v0")}},
+                 **{f"Continuous-{name}": "continuous" for name in (
+                     "Warehouse-8x8-v0", "Warehouse-12x12-v0", "Warehouse-12x12-Dynamic-v0", "Procedural-Warehouse-v0")}},
     env_defaults={"Fleet-12x12-v0": FLEET_ENV_DEFAULTS, "Fleet-32x32-v0": FLEET_ENV_DEFAULTS,
                   "Procedural-Warehouse-v0": PROCEDURAL_ENV_DEFAULTS},
 )

@@ -26,6 +26,8 @@ register("Continuous-Warehouse-12x12-v0", "wrl_jax.envs.continuous.registration:
          map_name="12x12")
 register("Continuous-Warehouse-12x12-Dynamic-v0", "wrl_jax.envs.continuous.registration:make_named",
          family="continuous", map_name="12x12", dynamic=True)
+register("Continuous-Procedural-Warehouse-v0", "wrl_jax.envs.continuous.procedural:make_continuous_procedural",
+         family="continuous")
 
 # rware 2.0.0's ids, as `import rware` registers them: 4 sizes x 3 request-queue sizes x 1..19 agents.
 for _size in ("tiny", "small", "medium", "large"):

@@ -8,7 +8,9 @@ is one jitted program: ``vmap`` over rounds and items, a ``lax.while_loop`` over
 once every episode has ended.
 
 The family's hook for the training driver and the CLI (:data:`EVALUATION`): a seed has *solved* its
-warehouse when every episode delivers without touching anything.
+warehouse when every episode delivers without touching anything. The procedural variant (a pool of
+layouts) brings its own episodes and a final generalization report through two methods the hook asks
+for (:mod:`~wrl_jax.envs.continuous.procedural_evaluation`); every other environment is unaffected.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from wrl_jax.core.evaluation import FamilyEvaluation, TrainRate
+from wrl_jax.core.evaluation import FamilyEvaluation, FinalContext, TrainRate
 from wrl_jax.envs.continuous.dynamics import reset_core
 from wrl_jax.envs.continuous.env import ContinuousWarehouse
 from wrl_jax.envs.continuous.types import ContinuousParams
@@ -95,8 +97,14 @@ def evaluate_episodes(act: Callable[[jax.Array, Any], jax.Array], env: Continuou
 
 def evaluate_policy(greedy_action: GreedyFn, network_params: Any, env: ContinuousWarehouse,
                     params: ContinuousParams) -> ContinuousEval:
-    """The deterministic policy on the evaluation's episodes."""
-    return evaluate_episodes(lambda obs, state: greedy_action(network_params, obs), env, params)
+    """The deterministic policy on the evaluation's episodes.
+
+    An environment with an ``evaluation_episodes(act, params)`` method (the procedural variant: a pool
+    of layouts) chooses its own episodes; its leaves then carry a leading layout axis.
+    """
+    act = lambda obs, state: greedy_action(network_params, obs)  # noqa: E731
+    own = getattr(env, "evaluation_episodes", None)
+    return evaluate_episodes(act, env, params) if own is None else own(act, params)
 
 
 # ---------------------------------------------------------------- in training
@@ -147,8 +155,13 @@ def summarize(result: ContinuousEval, seeds: Sequence[int] | None = None) -> dic
             "mean_return": _mean(r.episode_return[s], v),
         }
 
-    summary = {"num_seeds": num_seeds, "num_items": int(valid[0, 0].sum()), "rounds": int(valid.shape[1]),
+    # Leaves (seeds, rounds, I), or (seeds, layouts, rounds, I) for a pool of layouts.
+    layouts = int(valid.shape[1]) if valid.ndim == 4 else None
+    first_round = valid[0, :, 0] if layouts else valid[0, 0]
+    summary = {"num_seeds": num_seeds, "num_items": int(first_round.sum()), "rounds": int(valid.shape[-2]),
                "episodes": int(valid.sum()), **block(slice(None))}
+    if layouts:
+        summary["layouts"] = layouts
     summary["per_seed"] = [{"seed": seed, **block(i)} for i, seed in enumerate(seeds)]
     summary["all_seeds_solved"] = bool(
         all(row["success_rate"] == 1.0 and row["collision_free_rate"] == 1.0 for row in summary["per_seed"]))
@@ -170,9 +183,10 @@ def format_report(summary: dict[str, Any], label: str, convergence_steps: Sequen
     reached = [c for c in (convergence_steps or []) if c is not None]
     conv = (f"median {int(np.median(reached)):,} steps ({len(reached)}/{len(convergence_steps)} seeds)"
             if reached else "never" if convergence_steps else "not measured")
+    where = f"{summary['layouts']} layouts, " if "layouts" in summary else ""
     rows = [
-        ("Delivered", f"{_pct(summary['success_rate'])} ({summary['num_items']} items x {summary['rounds']} rounds x "
-                      f"{summary['num_seeds']} seeds; {solved}/{summary['num_seeds']} seeds solve it)"),
+        ("Delivered", f"{_pct(summary['success_rate'])} ({where}{summary['num_items']} items x {summary['rounds']} "
+                      f"rounds x {summary['num_seeds']} seeds; {solved}/{summary['num_seeds']} seeds solve it)"),
         ("Mean steps (delivered)", _num(summary["mean_steps"])),
         ("Collisions per episode", _num(summary["collisions_per_episode"], "{:.3f}")),
         ("Collision-free episodes", _pct(summary["collision_free_rate"])),
@@ -191,6 +205,16 @@ def format_seeds(summary: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def final_report(context: FinalContext) -> dict[str, Any]:
+    """After training, what the environment measures beyond the periodic episodes (``{}`` for a single layout).
+
+    An environment with a ``generalization_report(context)`` method (the procedural variant: held-out and
+    out-of-distribution layouts) is asked for it.
+    """
+    own = getattr(context.env, "generalization_report", None)
+    return {} if own is None else own(context)
+
+
 EVALUATION = FamilyEvaluation(
     evaluate_policy=evaluate_policy,
     seed_summary=seed_summary,
@@ -201,4 +225,5 @@ EVALUATION = FamilyEvaluation(
     format_details=format_seeds,
     progress_metric=("eval_success_rate", "eval delivered"),
     train_rates=(TrainRate("delivery_rate", "delivery rate (training episodes)", "terminated", progress="delivered"),),
+    final_report=final_report,
 )

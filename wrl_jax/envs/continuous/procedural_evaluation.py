@@ -1,0 +1,153 @@
+"""Evaluating a policy of the procedural continuous warehouse: on pool layouts while it trains, and on
+layouts it never saw afterwards (the generalization measurement).
+
+- **Periodic** (the family hook's ``evaluate_policy`` comes here, :func:`evaluate_pool_sample`): the first
+  :data:`EVAL_POOL_LAYOUTS` pool slots (the pool holds independent draws, so its first slots are a
+  uniform sample of it), every item, ``rounds(env)`` rounds, from fixed keys. A seed has *solved* when
+  every one of these episodes delivers without a contact: the training task, not generalization.
+- **Final** (:func:`final_report`, run once after training): the grid family's held-out set
+  (:func:`~wrl_jax.envs.procedural.layout_sets.heldout_set`: its own key stream, checked by hash
+  against the pool) and its out-of-distribution sets (denser floors, narrow aisles, the study's maps
+  padded), every real (layout, item) pair for ``rounds(env)`` rounds, every seed in one compiled
+  program (:func:`evaluate_layout_sets`); per set the continuous summary: delivery rate, steps of
+  delivered episodes, collisions per episode, collision-free rate, return, per seed.
+
+Episodes run on the plain environment with the layout's params (``run_episode`` of
+:mod:`~wrl_jax.envs.continuous.evaluation`), so they are the episodes the plain hook would run there.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from wrl_jax.envs.continuous.evaluation import EVAL_SEED, ContinuousEval, rounds, run_episode, summarize
+from wrl_jax.envs.continuous.procedural_layouts import layout_params, pool_size, with_pool
+from wrl_jax.envs.procedural.layout_sets import LayoutSet, heldout_set, ood_sets, pad_items
+
+EVAL_POOL_LAYOUTS = 16
+"""Pool slots of the periodic evaluation (all of a smaller pool)."""
+HELDOUT_LAYOUTS = 256
+"""Held-out layouts of the final report (drawn before the ones the pool shares by hash are dropped)."""
+OOD_LAYOUTS = 64
+"""Layouts of each generated out-of-distribution set of the final report."""
+
+Act = Callable[[jax.Array, Any], jax.Array]
+GreedyFn = Callable[[Any, jax.Array], jax.Array]
+
+
+def evaluate_pool_sample(act: Act, env, params, count: int | None = None) -> ContinuousEval:
+    """``act(obs, state)`` on every (slot, round, item) of the first ``count`` pool slots (jittable).
+
+    Leaves ``(count, rounds, I)``; ``valid`` masks item rows past each layout's ``num_items``. The
+    episodes are :func:`run_pairs`'s, from fixed keys: the same at every evaluation, for every seed.
+    """
+    count = min(EVAL_POOL_LAYOUTS, pool_size(params)) if count is None else int(count)
+    shape = (count, rounds(env), int(params.pool.items.shape[-2]))
+    slots, round_of, items = (jnp.asarray(a.reshape(-1), jnp.int32) for a in np.indices(shape))
+    delivered, steps, ret, collisions, pickup_step = (
+        x.reshape(shape) for x in run_pairs(act, env, params, slots, items, round_of))
+    valid = (items < params.pool.num_items[slots]).reshape(shape)
+    return ContinuousEval(valid=valid, delivered=delivered & valid, steps=steps, episode_return=ret,
+                          collisions=collisions, pickup_step=pickup_step)
+
+
+def run_pairs(act: Act, env, params, slots: jax.Array, items: jax.Array, rounds_of: jax.Array) -> tuple:
+    """Episodes ``(slot, item, round)`` of ``params``' pool, all at once: ``run_episode``'s outputs ``(E,)``.
+
+    Episode keys are ``fold_in`` of :data:`EVAL_SEED` with the slot, the item and the round (jittable).
+    """
+    root = jax.random.PRNGKey(EVAL_SEED)
+
+    def one(slot, item, round_index):
+        key = jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(root, slot), item), round_index)
+        return run_episode(act, env.plain, layout_params(params, slot), key, item)
+
+    return jax.vmap(one)(slots, items, rounds_of)
+
+
+def evaluate_layout_sets(greedy_action: GreedyFn, network_params: Any, env, params, sets: Sequence[LayoutSet],
+                         seeds: Sequence[int]) -> dict[str, Any]:
+    """Every seed's greedy policy (leading axis of ``network_params``) on every real (layout, item) of ``sets``.
+
+    The sets are padded to one item capacity and run as one pool, in one compiled program. With
+    moving obstacles, a layout with fewer eligible cells than the obstacles is left out (counted in
+    ``excluded_layouts``). Returns ``{set name: summary}``, each :func:`evaluation.summarize`'s
+    numbers (``success_rate``, ``mean_steps``, ``collisions_per_episode``, ``collision_free_rate``,
+    ``mean_return``, ``per_seed``) with ``description``, ``layouts``, ``excluded_layouts``,
+    ``episodes_per_seed`` and ``rounds``.
+
+    Raises:
+        ValueError: no sets, or a set padded to another shape than the environment's map.
+    """
+    if not sets:
+        raise ValueError("evaluate_layout_sets needs at least one set of layouts")
+    for layout_set in sets:
+        if layout_set.layouts.max_shape != (env.height, env.width):
+            raise ValueError(f"set {layout_set.name!r} is padded to {layout_set.layouts.max_shape}, the "
+                             f"environment's map is {(env.height, env.width)}")
+    capacity = max(layout_set.layouts.max_items for layout_set in sets)
+    batch = jax.tree.map(lambda *leaves: jnp.concatenate(leaves),
+                         *[pad_items(layout_set.layouts, capacity) for layout_set in sets])
+    eval_params = with_pool(params, batch)
+    usable = np.asarray(eval_params.pool_obstacle_cells.sum(axis=(1, 2))) >= env.num_obstacles
+    real = np.arange(capacity)[None, :] < np.asarray(batch.num_items)[:, None]
+    slots, items = np.nonzero(real & usable[:, None])
+    num_rounds = rounds(env)
+    slots, items = np.repeat(slots, num_rounds), np.repeat(items, num_rounds)
+    round_of = np.tile(np.arange(num_rounds), slots.size // num_rounds)
+
+    def seed_episodes(net, params, slots, items, round_of):
+        return run_pairs(lambda obs, state: greedy_action(net, obs), env, params, slots, items, round_of)
+
+    program = jax.jit(jax.vmap(seed_episodes, in_axes=(0, None, None, None, None)))
+    outcome = program(network_params, eval_params, *(jnp.asarray(a, jnp.int32) for a in (slots, items, round_of)))
+    delivered, steps, ret, collisions, pickup_step = (np.asarray(x) for x in outcome)
+    set_of_slot = np.repeat(np.arange(len(sets)), [layout_set.size for layout_set in sets])
+    report = {}
+    for index, layout_set in enumerate(sets):
+        mine = set_of_slot[slots] == index
+        if not mine.any():
+            report[layout_set.name] = {"description": layout_set.description, "layouts": 0,
+                                       "excluded_layouts": layout_set.size, "episodes_per_seed": 0}
+            continue
+        result = ContinuousEval(valid=np.ones_like(delivered[:, None, mine]), delivered=delivered[:, None, mine],
+                                steps=steps[:, None, mine], episode_return=ret[:, None, mine],
+                                collisions=collisions[:, None, mine], pickup_step=pickup_step[:, None, mine])
+        summary = summarize(result, seeds)
+        for key in ("num_items", "rounds", "episodes"):
+            summary.pop(key)
+        excluded = int((~usable[set_of_slot == index]).sum())
+        report[layout_set.name] = {"description": layout_set.description, "layouts": layout_set.size - excluded,
+                                   "excluded_layouts": excluded, "episodes_per_seed": int(mine.sum()),
+                                   "rounds": num_rounds, **summary}
+    return report
+
+
+def generalization_sets(env, params, heldout_layouts: int | None = None,
+                        ood_layouts: int | None = None) -> tuple[list[LayoutSet], int]:
+    """``(sets, overlap)``: the held-out set (``overlap`` of its layouts were in the pool, dropped), then
+    the out-of-distribution sets that fit the map (generated ones of ``ood_layouts`` layouts each)."""
+    heldout_layouts = HELDOUT_LAYOUTS if heldout_layouts is None else int(heldout_layouts)
+    ood_layouts = OOD_LAYOUTS if ood_layouts is None else int(ood_layouts)
+    heldout, overlap = heldout_set(env.generator, env.training_layout_hashes(params), heldout_layouts)
+    return [heldout, *ood_sets(env.generator, ood_layouts)], overlap
+
+
+def final_report(context, heldout_layouts: int | None = None, ood_layouts: int | None = None) -> dict[str, Any]:
+    """The generalization measurement: ``{"heldout": {...}, "ood": {set: {...}}, "final_report_seconds"}``.
+
+    Every seed's greedy policy on :func:`generalization_sets`, with :func:`evaluate_layout_sets`;
+    ``heldout.overlap_with_training`` counts the held-out draws the pool held (dropped).
+    """
+    tic = time.perf_counter()
+    sets, overlap = generalization_sets(context.env, context.params, heldout_layouts, ood_layouts)
+    report = evaluate_layout_sets(context.algo.greedy_action, context.network_params, context.env,
+                                  context.params, sets, context.seeds)
+    heldout = {**report.pop("heldout"), "overlap_with_training": overlap}
+    return {"heldout": heldout, "ood": report, "final_report_seconds": time.perf_counter() - tic}
