@@ -12,6 +12,7 @@ register_evaluation("warehouse", "wrl_jax.envs.warehouse.evaluation:EVALUATION")
 register_evaluation("procedural", "wrl_jax.envs.procedural.evaluation:EVALUATION")
 register_evaluation("fleet", "wrl_jax.envs.fleet.evaluation:EVALUATION")
 register_evaluation("continuous", "wrl_jax.envs.continuous.evaluation:EVALUATION")
+register_evaluation("rware", "wrl_jax.envs.rware.evaluation:EVALUATION")
 
 register("Warehouse-8x8-v0", "wrl_jax.envs.warehouse.registration:make_named", family="warehouse",
          map_name="8x8")

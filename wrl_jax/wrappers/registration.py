@@ -1,5 +1,6 @@
 """Gymnasium ids for the single-robot warehouses: ``gymnasium.make("wrl_jax/Warehouse-8x8-v0")``, and the
-continuous ones (``"wrl_jax/Continuous-Warehouse-12x12-v0"``: :mod:`wrl_jax.wrappers.gymnasium_continuous`).
+continuous ones (``"wrl_jax/Continuous-Warehouse-12x12-v0"``: :mod:`wrl_jax.wrappers.gymnasium_continuous`)
+and rware's ids with rware's own API (``"wrl_jax/rware-tiny-4ag-v2"``: :mod:`wrl_jax.wrappers.rware_gymnasium`).
 
 Registration stores entry-point strings only, so it imports Gymnasium and nothing of JAX;
 ``import wrl_jax`` calls it. The adapters themselves are :mod:`wrl_jax.wrappers.gymnasium`.
@@ -15,6 +16,7 @@ GYM_NAMESPACE = "wrl_jax"
 SINGLE_ENTRY = "wrl_jax.wrappers.gymnasium:WarehouseGymEnv"
 VECTOR_ENTRY = "wrl_jax.wrappers.gymnasium_vector:WarehouseVectorEnv"
 CONTINUOUS_ENTRY = "wrl_jax.wrappers.gymnasium_continuous:ContinuousGymEnv"
+RWARE_ENTRY = "wrl_jax.wrappers.rware_gymnasium:RwareGymEnv"
 
 
 def gym_id(name: str) -> str:
@@ -23,7 +25,7 @@ def gym_id(name: str) -> str:
 
 
 def register_gymnasium_envs() -> list[str]:
-    """Register every single-robot ``wrl_jax`` environment with Gymnasium (idempotent); returns the ids.
+    """Register the single-robot, continuous and rware environments with Gymnasium (idempotent); returns the ids.
 
     Both entry points are registered: ``gymnasium.make(id, **overrides)`` builds a
     ``WarehouseGymEnv``, ``gymnasium.make_vec(id, num_envs=n,
@@ -47,6 +49,12 @@ def register_gymnasium_envs() -> list[str]:
         env_id = gym_id(name)
         if env_id not in gym.registry:
             gym.register(id=env_id, entry_point=CONTINUOUS_ENTRY, kwargs={"name": name}, max_episode_steps=None,
+                         nondeterministic=False)
+        ids.append(env_id)
+    for name in registered_names(family="rware"):  # rware's API: Tuple spaces, a reward list, one done
+        env_id = gym_id(name)
+        if env_id not in gym.registry:
+            gym.register(id=env_id, entry_point=RWARE_ENTRY, kwargs={"name": name}, max_episode_steps=None,
                          nondeterministic=False)
         ids.append(env_id)
     return ids

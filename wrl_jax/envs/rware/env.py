@@ -9,6 +9,10 @@ Conventions against rware's Gymnasium surface: one ``(N,)`` int32 action vector 
 messages ``(N, 1 + M)``: the action, then the bits), ``(N, D)`` float32 observations,
 ``(N,)`` float32 rewards, and rware's single ``done`` reported as ``truncated`` (its time and
 inactivity limits are cut-offs, not terminal states), ``terminated`` always False.
+
+For multi-agent learners: :meth:`Rware.global_state` is EPyMARL's RWARE state (every agent's
+observation, concatenated), what MAPPO's centralized critic reads (``info["final_global_state"]``
+holds the reached one), and :meth:`Rware.onehot_coordinates` lets PPO one-hot the own cell.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ import numpy as np
 
 from wrl_jax.core.environment import Environment
 from wrl_jax.core.gymnax_base import spaces
+from wrl_jax.core.random import split_key
 from wrl_jax.core.spaces import MultiDiscrete
 from wrl_jax.envs.rware.dynamics import draw_replacements, draw_reset, rware_reset, transition_and_grids
 from wrl_jax.envs.rware.observation import observation_size, rware_observation
@@ -90,6 +95,29 @@ class Rware(Environment[RwareState, RwareParams]):
         self.check_action(action)
         return self.transition_with(state, action, draw_replacements(key, params, self.queue_size), params)
 
+    def step(self, key: jax.Array, state: RwareState, action: Any, params: RwareParams | None = None):
+        """The base class's ``step`` (same keys, draws, outputs and bits), with the reset run only when needed.
+
+        Under ``vmap`` the base class computes a fresh episode (its draws and observation) for every
+        environment on every step and selects; that was three quarters of a step. Here it runs inside a
+        batched ``while`` that iterates only while some environment of the batch ended (:func:`_only_where`):
+        environments started together end together (rware's 500 steps), so one step in 500 pays for it.
+        """
+        params = self.default_params if params is None else params
+        obs, reached, reward, terminated, truncated, info = self.transition(split_key(key, 0), state, action, params)
+        typed = jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
+        impl = jax.random.key_impl(key) if typed else None
+
+        def reset(data: jax.Array):
+            fresh_obs, fresh = self.reset_env(split_key(jax.random.wrap_key_data(data, impl=impl) if typed else data, 1),
+                                              params)
+            return fresh, fresh_obs
+
+        data = jax.random.key_data(key) if typed else key
+        next_state, next_obs = _only_where(terminated | truncated, reset, data, (reached, obs))
+        info = {**info, "final_obs": obs, "final_observation": obs}
+        return next_obs, next_state, reward, terminated, truncated, info
+
     def transition_with(self, state: RwareState, action: Any, replacements: jax.Array, params: RwareParams):
         """:meth:`transition` with the replacement draws given (``(G,)`` int32, see :mod:`.dynamics`).
 
@@ -103,11 +131,32 @@ class Rware(Environment[RwareState, RwareParams]):
         state, reward, done, info, layers = transition_and_grids(state, action, jnp.asarray(replacements, jnp.int32),
                                                                  params, message)
         obs = rware_observation(state, params, self.sensor_range, self.normalised_coordinates, layers)
+        info = {**info, "final_global_state": obs.reshape(-1)}
         return obs, state, reward, jnp.zeros((), bool), done, info
 
     def get_obs(self, state: RwareState, params: RwareParams | None = None, key: jax.Array | None = None):
         params = self.default_params if params is None else params
         return rware_observation(state, params, self.sensor_range, self.normalised_coordinates)
+
+    def global_state(self, state: RwareState, params: RwareParams | None = None) -> jax.Array:
+        """``(N * D,)`` float32: every agent's observation, concatenated in agent order.
+
+        EPyMARL's state for RWARE (its Gymnasium wrapper concatenates the observations), so a
+        centralized critic here sees what MAPPO's sees in the published tables.
+        """
+        return self.get_obs(state, params).reshape(-1)
+
+    def global_state_size(self) -> int:
+        return self.num_agents * self.obs_size
+
+    def onehot_coordinates(self) -> tuple[int, int, int, int] | None:
+        """The own ``x, y`` (raw cell indices, ``max(H, W)`` values each), for PPO's ``obs_encoding="onehot"``.
+
+        ``None`` with ``normalised_coordinates`` (x and y then have different scales): use ``"raw"``.
+        """
+        if self.normalised_coordinates:
+            return None
+        return (2, max(self.height, self.width), 0, 1)
 
     def is_truncated(self, state: RwareState, params: RwareParams) -> jax.Array:
         time_up = (params.max_steps > 0) & (state.time >= params.max_steps)
@@ -147,6 +196,9 @@ class Rware(Environment[RwareState, RwareParams]):
         """rware's ``Box(-inf, inf)`` per agent, stacked: ``(N, D)`` float32."""
         return spaces.Box(-jnp.inf, jnp.inf, (self.num_agents, self.obs_size), jnp.float32)
 
+    def global_state_space(self, params: RwareParams | None = None) -> spaces.Box:
+        return spaces.Box(-jnp.inf, jnp.inf, (self.global_state_size(),), jnp.float32)
+
     def state_space(self, params: RwareParams | None = None) -> spaces.Dict:
         n, s = self.num_agents, self.num_shelves
         return spaces.Dict({
@@ -162,3 +214,18 @@ class Rware(Environment[RwareState, RwareParams]):
             "time": spaces.Discrete(np.iinfo(np.int32).max),
             "inactive": spaces.Discrete(np.iinfo(np.int32).max),
         })
+
+
+def _only_where(pred: jax.Array, compute, operand: jax.Array, otherwise):
+    """``compute(operand)`` where ``pred``, else ``otherwise`` (same pytree), computed only when some ``pred`` holds.
+
+    A ``lax.while_loop`` that runs at most once (the fleet's device, :func:`wrl_jax.envs.fleet.dynamics.only_where`):
+    under ``vmap`` a ``where`` or ``lax.cond`` evaluates ``compute`` for every environment on every step, a batched
+    ``while`` only while some environment needs it. ``operand`` (unsigned key data) changes in the carry, so XLA
+    cannot hoist ``compute`` out of the loop.
+    """
+    def body(carry):
+        _, data, _ = carry
+        return jnp.zeros((), bool), data + np.asarray(1, dtype=data.dtype), compute(data)
+
+    return jax.lax.while_loop(lambda carry: carry[0], body, (jnp.asarray(pred), operand, otherwise))[2]

@@ -1,0 +1,332 @@
+"""Agent-steps per second of the JAX RWARE step, against rware 2.0.0's own Python step and Jumanji's RobotWarehouse.
+
+    python bench/rware_throughput.py                                   # tiny-4ag and small-4ag, B = 1, 32, 1024, 32768
+    python bench/rware_throughput.py --batch-sizes 1 32 1024 --seconds 1 --profile
+    python bench/rware_throughput.py --jumanji-python /tmp/jumanji-venv/bin/python
+
+Ours: ``jit(lax.scan(vmap(env.step)))`` over ``T`` steps of ``B`` environments (auto-reset included), uniform
+random actions drawn inside the scan, compile time measured apart (``lower().compile()``), one warm-up call,
+then the best of ``--repeats`` timed calls (``block_until_ready``). rware: ``Warehouse.step`` in a Python
+loop, one environment, the same random policy (actions drawn beforehand), reset when done. Jumanji (its own
+virtual environment: ``python -m venv /tmp/jumanji-venv && /tmp/jumanji-venv/bin/pip install jumanji``): its
+``RobotWarehouse`` with the same layout, agents, sensor range and queue, behind ``AutoResetWrapper``, timed as
+ours, in a child process of that interpreter. Jumanji's warehouse is not rware's rules (agents move one after
+another, an episode ends on a collision, rewards are shared): a speed reference only.
+
+``--profile`` times variants of our step with one part left out, at one batch size, to say what bounds it. Results: ``--out``/throughput.json and throughput.md; every ratio is from the same run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+SIZES = {"rware-tiny-4ag-v2": (1, 3, 4, 4), "rware-small-4ag-v2": (2, 3, 4, 4)}
+"""id -> (shelf_rows, shelf_columns, agents, request queue): also what Jumanji's generator is given."""
+TARGET_ENV_STEPS = 1 << 16
+"""Environment steps per timed call (``T = TARGET / B``, kept within 4 .. 4096); the batch is reset before."""
+MEMORY_LIMIT_BYTES = 8 << 30
+"""Skip a batch whose carried state and observations would exceed this (a rough bound)."""
+
+
+def steps_for(batch: int) -> int:
+    return max(4, min(4096, TARGET_ENV_STEPS // batch))
+
+
+def time_scan(make_scan, batch: int, agents: int, repeats: int) -> dict:
+    """Compile, warm up and time ``make_scan(batch, steps) -> (jitted fn, args)``; agent-steps per second."""
+    import jax
+
+    steps = steps_for(batch)
+    fn, args = make_scan(batch, steps)
+    t0 = time.perf_counter()
+    compiled = fn.lower(*args).compile()
+    compile_s = time.perf_counter() - t0
+    jax.block_until_ready(compiled(*args))
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(compiled(*args))
+        best = min(best, time.perf_counter() - t0)
+    return {"batch": batch, "steps": steps, "compile_s": round(compile_s, 3), "seconds": round(best, 4),
+            "agent_steps_per_s": batch * steps * agents / best}
+
+
+def ours_scan(env, params):
+    """``make_scan`` for our environment: random actions, ``vmap(env.step)``, the rewards summed (kept live)."""
+    import jax
+    import jax.numpy as jnp
+
+    def make(batch: int, steps: int):
+        start = jax.jit(lambda key: jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(key, batch), params))
+        obs, state = start(jax.random.key(1))
+
+        def run(key, state, obs):
+            def body(carry, t):  # the observation is carried, as a learner carries it: it stays computed
+                state, _, total = carry
+                step_key = jax.random.fold_in(key, t)
+                action_key, env_key = jax.random.split(step_key)
+                actions = jax.random.randint(action_key, (batch, env.num_agents), 0, 5, dtype=jnp.int32)
+                obs, state, reward, *_ = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
+                    jax.random.split(env_key, batch), state, actions, params)
+                return (state, obs, total + reward.sum()), None
+
+            (_, obs, total), _ = jax.lax.scan(body, (state, obs, jnp.zeros(())), jnp.arange(steps))
+            return obs, total
+
+        return jax.jit(run), (jax.random.key(0), state, obs)
+
+    return make
+
+
+def state_bytes(env, batch: int) -> int:
+    per_env = 4 * (env.num_agents * (6 + env.obs_size) + 2 * env.num_shelves + env.queue_size + 2)
+    return 4 * batch * per_env  # state, observation, and the copies a step's selects make
+
+
+def bench_ours(name: str, batches: list[int], repeats: int) -> list[dict]:
+    import wrl_jax
+
+    env, params = wrl_jax.make(name)
+    rows = []
+    for batch in batches:
+        if state_bytes(env, batch) > MEMORY_LIMIT_BYTES:
+            rows.append({"batch": batch, "skipped": "over the memory bound"})
+            continue
+        rows.append(time_scan(ours_scan(env, params), batch, env.num_agents, repeats))
+        print(f"  ours {name} B={batch}: {rows[-1]['agent_steps_per_s']:,.0f} agent-steps/s "
+              f"(compile {rows[-1]['compile_s']:.1f} s)", flush=True)
+    return rows
+
+
+def bench_rware(name: str, seconds: float) -> dict:
+    """rware's Python step on one environment, uniform random actions, reset when done."""
+    import gymnasium as gym
+    import numpy as np
+    import rware  # noqa: F401  (registers rware's ids)
+
+    env = gym.make(name, disable_env_checker=True).unwrapped
+    env.reset(seed=0)
+    actions = np.random.default_rng(0).integers(0, 5, (100_000, env.n_agents)).tolist()
+    steps, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        for a in actions[steps % 90_000: steps % 90_000 + 100]:
+            _, _, done, _, _ = env.step(a)
+            if done:
+                env.reset()
+        steps += 100
+    elapsed = time.perf_counter() - t0
+    return {"steps": steps, "seconds": round(elapsed, 3), "agent_steps_per_s": steps * env.n_agents / elapsed}
+
+
+def bench_jumanji(python: str, name: str, batches: list[int], repeats: int) -> list[dict] | str:
+    """Jumanji's RobotWarehouse, in a child process of its own interpreter; the reason when it cannot run."""
+    if not Path(python).exists():
+        return f"no interpreter at {python} (install: python -m venv /tmp/jumanji-venv && " \
+               f"/tmp/jumanji-venv/bin/pip install jumanji)"
+    args = [python, __file__, "--jumanji-child", name, "--repeats", str(repeats), "--batch-sizes", *map(str, batches)]
+    done = subprocess.run(args, capture_output=True, text=True, timeout=900, check=False)
+    if done.returncode != 0:
+        return f"the Jumanji run failed: {done.stderr.strip().splitlines()[-1] if done.stderr else done.returncode}"
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def jumanji_child(name: str, batches: list[int], repeats: int) -> None:
+    """Run in Jumanji's interpreter: its RobotWarehouse with our id's layout, timed as ours."""
+    import jax
+    import jax.numpy as jnp
+    import jumanji
+    from jumanji.environments import RobotWarehouse
+    from jumanji.environments.routing.robot_warehouse.generator import RandomGenerator
+    from jumanji.wrappers import AutoResetWrapper
+
+    rows_, columns, agents, queue = SIZES[name]
+    env = AutoResetWrapper(RobotWarehouse(RandomGenerator(shelf_rows=rows_, shelf_columns=columns, column_height=8,
+                                                          num_agents=agents, sensor_range=1,
+                                                          request_queue_size=queue), time_limit=500))
+
+    def make(batch: int, steps: int):
+        state, timestep = jax.jit(lambda key: jax.vmap(env.reset)(jax.random.split(key, batch)))(jax.random.key(1))
+
+        def run(key, state, view):
+            def body(carry, t):
+                state, _, total = carry
+                actions = jax.random.randint(jax.random.fold_in(key, t), (batch, agents), 0, 5, dtype=jnp.int32)
+                state, timestep = jax.vmap(env.step)(state, actions)
+                return (state, timestep.observation.agents_view, total + timestep.reward.sum()), None
+
+            (_, view, total), _ = jax.lax.scan(body, (state, view, jnp.zeros(())), jnp.arange(steps))
+            return view, total
+
+        return jax.jit(run), (jax.random.key(0), state, timestep.observation.agents_view)
+
+    out = [time_scan(make, batch, agents, repeats) for batch in batches]
+    print(json.dumps({"jumanji": jumanji.__version__, "jax": jax.__version__, "rows": out}))
+
+
+PROFILE_VARIANTS = (
+    ("step", "env.step: transition + auto-reset (what a learner runs)"),
+    ("transition", "env.transition: no reset"),
+    ("dynamics", "the dynamics alone: no observation"),
+    ("no_conflicts", "the dynamics, every move committed (no move graph)"),
+    ("no_deliveries", "the dynamics, no delivery pass"),
+)
+"""Variants of our step, each carried through its own scan (a state that changes, so nothing is hoisted)."""
+
+
+def profile(name: str, batch: int, repeats: int) -> dict:
+    """What bounds our step: variants with a part left out, timed as the step; the parts are the differences."""
+    import contextlib
+
+    import jax
+    import jax.numpy as jnp
+
+    import wrl_jax
+    from wrl_jax.envs.rware import dynamics
+
+    env, params = wrl_jax.make(name)
+    n = env.num_agents
+
+    @contextlib.contextmanager
+    def without(part: str):
+        saved = dynamics.resolve_moves, dynamics._deliver
+        if part == "no_conflicts":
+            dynamics.resolve_moves = lambda start, target: jnp.ones(start.shape, bool)
+        if part == "no_deliveries":
+            dynamics._deliver = lambda state, reward, *rest: (state, reward, jnp.zeros(n, bool), jnp.zeros((), bool))
+        try:
+            yield
+        finally:
+            dynamics.resolve_moves, dynamics._deliver = saved
+
+    def one_step(variant, key, state, obs, action):
+        if variant == "step":
+            return env.step(key, state, action, params)[:2][::-1]
+        if variant == "transition":
+            obs, state = env.transition(key, state, action, params)[:2]
+            return state, obs
+        draws = dynamics.draw_replacements(key, params, env.queue_size)
+        return dynamics.transition_and_grids(state, action, draws, params)[0], obs
+
+    times = {}
+    for variant, label in PROFILE_VARIANTS:
+        def make(b, steps, variant=variant):
+            obs, state = jax.jit(lambda key: jax.vmap(env.reset, in_axes=(0, None))(
+                jax.random.split(key, b), params))(jax.random.key(2))
+
+            def run(key, state, obs):
+                def body(carry, t):
+                    k = jax.random.fold_in(key, t)
+                    actions = jax.random.randint(k, (b, n), 0, 5, dtype=jnp.int32)
+                    return jax.vmap(lambda *a: one_step(variant, *a))(jax.random.split(k, b), *carry, actions), None
+
+                return jax.lax.scan(body, (state, obs), jnp.arange(steps))[0]
+
+            return jax.jit(run), (jax.random.key(1), state, obs)
+
+        with without(variant):
+            row = time_scan(make, batch, n, repeats)
+        times[variant] = 1e6 * row["seconds"] / (batch * row["steps"])
+        print(f"  profile {label}: {times[variant]:.3f} us per env-step", flush=True)
+    parts = {
+        "auto-reset (a batched while: runs only on steps where an episode ends)": times["step"] - times["transition"],
+        "observation (cell features of the whole padded grid, then windows)": times["transition"] - times["dynamics"],
+        "move graph (resolve_moves)": times["dynamics"] - times["no_conflicts"],
+        "deliveries (a scan over goals)": times["dynamics"] - times["no_deliveries"],
+        "rest of the dynamics (targets, cancel pass, occupancy grids, counters)":
+            times["no_conflicts"] + times["no_deliveries"] - times["dynamics"],
+    }
+    return {"id": name, "batch": batch, "us_per_env_step": times, "parts_us": parts,
+            "labels": dict(PROFILE_VARIANTS)}
+
+
+NOTES = ("Notes. Ours: `jit(lax.scan(vmap(env.step)))`, auto-reset included, compile time apart (in the JSON), "
+         "best of the timed calls. rware: its Python `Warehouse.step`, one environment, reset when done. "
+         "Jumanji: `python -m venv /tmp/jumanji-venv && /tmp/jumanji-venv/bin/pip install jumanji`, its "
+         "`RobotWarehouse` (same layout, agents, sensor range, queue) behind `AutoResetWrapper`, timed as ours; "
+         "its rules are not rware's (agents move one after another, a collision ends the episode, rewards are "
+         "shared), so it is a speed reference only. One CPU run on a shared machine: expect noise of tens of "
+         "percent between runs; the ratios are from the same run.")
+"""The fixed text under the tables."""
+
+
+def markdown(report: dict) -> str:
+    lines = [f"# RWARE throughput ({report['date']}, {report['machine']})", "",
+             f"`{report['command']}`", "", "Agent-steps per second (environment steps x 4 agents), random actions.",
+             "", ("| id | ours B=1 | ours B=32 | ours B=1024 | ours B=32768 | rware (Python, 1 env) | "
+                  "ours best / rware | Jumanji best |"), "|---|---|---|---|---|---|---|---|"]
+    for name, entry in report["ids"].items():
+        by_batch = {row["batch"]: row for row in entry["ours"]}
+        cells = [f"{by_batch[b]['agent_steps_per_s']:,.0f}" if b in by_batch and "skipped" not in by_batch[b]
+                 else "-" for b in (1, 32, 1024, 32768)]
+        best = max(row.get("agent_steps_per_s", 0) for row in entry["ours"])
+        jumanji = entry["jumanji"]
+        jumanji_best = (f"{max(r['agent_steps_per_s'] for r in jumanji['rows']):,.0f}"
+                        if isinstance(jumanji, dict) else "not run")
+        lines.append(f"| {name} | {' | '.join(cells)} | {entry['rware']['agent_steps_per_s']:,.0f} | "
+                     f"{best / entry['rware']['agent_steps_per_s']:,.0f}x | {jumanji_best} |")
+    for name, entry in report["ids"].items():
+        if isinstance(entry["jumanji"], dict):
+            lines += ["", f"Jumanji {entry['jumanji']['jumanji']} RobotWarehouse, layout of {name}: " + ", ".join(
+                f"B={r['batch']} {r['agent_steps_per_s']:,.0f}" for r in entry["jumanji"]["rows"])]
+    prof = report.get("profile")
+    if prof:
+        step = prof["us_per_env_step"]["step"]
+        lines += ["", (f"What our step spends, {prof['id']} at B={prof['batch']} (microseconds per environment "
+                       "step; each part is the difference of two variants timed alike, so they are rough):"), "",
+                  "| part | us / env-step | of the step |", "|---|---|---|"]
+        lines += [f"| {part} | {us:.3f} | {us / step:.0%} |" for part, us in prof["parts_us"].items()]
+        lines += [f"| whole step | {step:.3f} | 100% |"]
+    lines += ["", NOTES]
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--ids", nargs="+", default=list(SIZES))
+    parser.add_argument("--batch-sizes", nargs="+", type=int, default=[1, 32, 1024, 32768])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--seconds", type=float, default=3.0, help="rware's timed Python loop, per id")
+    parser.add_argument("--jumanji-python", default="/tmp/jumanji-venv/bin/python")
+    parser.add_argument("--profile", action="store_true", help="time the parts of our step at --profile-batch")
+    parser.add_argument("--profile-batch", type=int, default=1024)
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "rware")
+    parser.add_argument("--markdown-only", action="store_true", help="rewrite throughput.md from throughput.json")
+    parser.add_argument("--jumanji-child", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.markdown_only:
+        (args.out / "throughput.md").write_text(markdown(json.loads((args.out / "throughput.json").read_text())))
+        return
+    if args.jumanji_child:
+        jumanji_child(args.jumanji_child, args.batch_sizes, args.repeats)
+        return
+    unknown = sorted(set(args.ids) - set(SIZES))
+    if unknown:
+        parser.error(f"unknown ids {unknown}; known: {list(SIZES)}")
+    import jax
+
+    report = {"command": "python bench/rware_throughput.py " + " ".join(sys.argv[1:]),
+              "date": time.strftime("%Y-%m-%d"), "machine": f"{platform.machine()}, {jax.devices()[0].device_kind}",
+              "jax": jax.__version__, "ids": {}}
+    for name in args.ids:
+        print(name, flush=True)
+        entry = {"ours": bench_ours(name, args.batch_sizes, args.repeats), "rware": bench_rware(name, args.seconds)}
+        print(f"  rware {name}: {entry['rware']['agent_steps_per_s']:,.0f} agent-steps/s", flush=True)
+        entry["jumanji"] = bench_jumanji(args.jumanji_python, name, args.batch_sizes, args.repeats)
+        print(f"  jumanji {name}: {entry['jumanji'] if isinstance(entry['jumanji'], str) else 'done'}", flush=True)
+        report["ids"][name] = entry
+    if args.profile:
+        report["profile"] = profile(args.ids[0], args.profile_batch, args.repeats)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "throughput.json").write_text(json.dumps(report, indent=2))
+    (args.out / "throughput.md").write_text(markdown(report))
+    print(markdown(report))
+
+
+if __name__ == "__main__":
+    main()
