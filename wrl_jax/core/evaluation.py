@@ -206,6 +206,16 @@ def run_final_report(evaluation: FamilyEvaluation, trainer: Any, runners: Any, o
     return evaluation.final_report(context)
 
 
+def percent_text(x: float | None) -> str:
+    """A rate in [0, 1] as report text (``"97.5%"``); ``"n/a"`` when there is none."""
+    return "n/a" if x is None else f"{100.0 * x:.1f}%"
+
+
+def number_text(x: float | None, fmt: str = "{:.1f}") -> str:
+    """A number as report text in ``fmt``; ``"n/a"`` when there is none."""
+    return "n/a" if x is None else fmt.format(x)
+
+
 def for_env(env: Any) -> FamilyEvaluation:
     """The evaluation of ``env``'s family (``env.family``), registered in :mod:`wrl_jax.envs`."""
     family = getattr(env, "family", None)

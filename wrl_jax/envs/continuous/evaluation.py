@@ -24,6 +24,8 @@ import numpy as np
 from flax import struct
 
 from wrl_jax.core.evaluation import FamilyEvaluation, FinalContext, TrainRate
+from wrl_jax.core.evaluation import number_text as _num
+from wrl_jax.core.evaluation import percent_text as _pct
 from wrl_jax.envs.continuous.dynamics import reset_core
 from wrl_jax.envs.continuous.env import ContinuousWarehouse
 from wrl_jax.envs.continuous.types import ContinuousParams
@@ -166,14 +168,6 @@ def summarize(result: ContinuousEval, seeds: Sequence[int] | None = None) -> dic
     summary["all_seeds_solved"] = bool(
         all(row["success_rate"] == 1.0 and row["collision_free_rate"] == 1.0 for row in summary["per_seed"]))
     return summary
-
-
-def _pct(x: float | None) -> str:
-    return "n/a" if x is None else f"{100.0 * x:.1f}%"
-
-
-def _num(x: float | None, fmt: str = "{:.1f}") -> str:
-    return "n/a" if x is None else fmt.format(x)
 
 
 def format_report(summary: dict[str, Any], label: str, convergence_steps: Sequence[int | None] | None = None,

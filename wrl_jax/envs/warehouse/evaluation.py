@@ -42,6 +42,8 @@ import numpy as np
 from flax import struct
 
 from wrl_jax.core.evaluation import FamilyEvaluation, SweepColumns, SweepMetric, TrainRate
+from wrl_jax.core.evaluation import number_text as _num
+from wrl_jax.core.evaluation import percent_text as _pct
 from wrl_jax.envs.warehouse import routes
 from wrl_jax.envs.warehouse.env import Warehouse
 from wrl_jax.envs.warehouse.types import EnvParams
@@ -250,14 +252,6 @@ def summarize(result: EpisodeEval, seeds: Sequence[int] | None = None) -> dict[s
     summary["per_seed"] = per_seed
     summary["rows"] = rows
     return summary
-
-
-def _pct(x: float | None) -> str:
-    return "n/a" if x is None else f"{100.0 * x:.1f}%"
-
-
-def _num(x: float | None, fmt: str = "{:.1f}") -> str:
-    return "n/a" if x is None else fmt.format(x)
 
 
 def format_table3(
