@@ -21,12 +21,12 @@ from typing import Any
 import gymnasium
 import jax
 import numpy as np
-from pettingzoo import ParallelEnv
 
 from wrl_jax.core import registry
 from wrl_jax.envs.fleet.dynamics import FLAGS
 from wrl_jax.envs.fleet.env import Fleet
 from wrl_jax.envs.fleet.render import render_ascii, render_frame
+from wrl_jax.wrappers.parallel_base import SharedSpacesParallelEnv
 
 
 @functools.partial(jax.jit, static_argnums=0)
@@ -44,7 +44,7 @@ def _global_state(env: Fleet, state: Any, params: Any):
     return env.global_state(state, params)
 
 
-class FleetParallelEnv(ParallelEnv):
+class FleetParallelEnv(SharedSpacesParallelEnv):
     """A registered fleet environment (or any :class:`Fleet` and its params) as a ``ParallelEnv``.
 
     Args:
@@ -82,23 +82,10 @@ class FleetParallelEnv(ParallelEnv):
         self.agents: list[str] = []
         self._obs_space = gymnasium.spaces.Box(0.0, 1.0, (env.obs_size,), np.float32)
         self._action_space = gymnasium.spaces.Discrete(env.num_actions)
+        # The documented global state (wrl_jax.envs.fleet.observation.global_state).
         self._state_space = gymnasium.spaces.Box(0.0, 1.0, (env.global_state_size(),), np.float32)
         self._rng = np.random.default_rng()
         self._state = None
-
-    # ------------------------------------------------------------ spaces
-    def observation_space(self, agent: str) -> gymnasium.spaces.Box:
-        self._check_agent(agent)
-        return self._obs_space
-
-    def action_space(self, agent: str) -> gymnasium.spaces.Discrete:
-        self._check_agent(agent)
-        return self._action_space
-
-    @property
-    def state_space(self) -> gymnasium.spaces.Box:
-        """The documented global state (:func:`wrl_jax.envs.fleet.observation.global_state`)."""
-        return self._state_space
 
     # ------------------------------------------------------------ API
     def reset(self, seed: int | None = None, options: dict | None = None):
@@ -147,17 +134,10 @@ class FleetParallelEnv(ParallelEnv):
             return render_ascii(self._state, self.params)
         return np.asarray(render_frame(self._state, self.params))
 
-    def close(self) -> None:
-        self._state = None
-
     # ------------------------------------------------------------ helpers
     def _next_key(self) -> jax.Array:
         return jax.random.key(int(self._rng.integers(0, 2**31 - 1)))
 
-    def _check_agent(self, agent: str) -> None:
-        if agent not in self.possible_agents:
-            first, last = self.possible_agents[0], self.possible_agents[-1]
-            raise ValueError(f"unknown agent {agent!r}; agents are {first} .. {last}")
 
     def _require_state(self) -> None:
         if self._state is None:

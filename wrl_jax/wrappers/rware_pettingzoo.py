@@ -23,10 +23,10 @@ from typing import Any
 import gymnasium
 import jax
 import numpy as np
-from pettingzoo import ParallelEnv
 
 from wrl_jax.envs.rware.env import Rware
 from wrl_jax.envs.rware.types import RwareParams
+from wrl_jax.wrappers.parallel_base import SharedSpacesParallelEnv
 from wrl_jax.wrappers.rware_gymnasium import (
     agent_action_space,
     agent_observation_space,
@@ -39,7 +39,7 @@ from wrl_jax.wrappers.rware_gymnasium import (
 )
 
 
-class RwareParallelEnv(ParallelEnv):
+class RwareParallelEnv(SharedSpacesParallelEnv):
     """A registered rware id (or any :class:`Rware` and its params) as a ``ParallelEnv``.
 
     Args:
@@ -62,24 +62,11 @@ class RwareParallelEnv(ParallelEnv):
         self.agents: list[str] = []
         self._obs_space = agent_observation_space(self.rware)
         self._action_space = agent_action_space(self.rware)
+        # EPyMARL's RWARE state: every agent's observation, concatenated.
         self._state_space = gymnasium.spaces.Box(-np.inf, np.inf, (self.rware.global_state_size(),), np.float32)
         self._rng = np.random.default_rng()
         self._state = None
         self._obs: np.ndarray | None = None
-
-    # ------------------------------------------------------------ spaces
-    def observation_space(self, agent: str) -> gymnasium.spaces.Box:
-        self._check_agent(agent)
-        return self._obs_space
-
-    def action_space(self, agent: str) -> gymnasium.spaces.Space:
-        self._check_agent(agent)
-        return self._action_space
-
-    @property
-    def state_space(self) -> gymnasium.spaces.Box:
-        """EPyMARL's RWARE state: every agent's observation, concatenated."""
-        return self._state_space
 
     # ------------------------------------------------------------ API
     def reset(self, seed: int | None = None, options: dict | None = None):
@@ -125,13 +112,6 @@ class RwareParallelEnv(ParallelEnv):
             raise ValueError("call reset() first")
         return render_text(self.rware, self._state, self.params)
 
-    def close(self) -> None:
-        self._state = None
-
-    def _check_agent(self, agent: str) -> None:
-        if agent not in self.possible_agents:
-            raise ValueError(f"unknown agent {agent!r}; agents are {self.possible_agents[0]} .. "
-                             f"{self.possible_agents[-1]}")
 
 
 def parallel_env(name: str = "rware-tiny-4ag-v2", render_mode: str | None = None, **overrides: Any) -> RwareParallelEnv:
