@@ -232,3 +232,20 @@ def _select(done: jax.Array, fresh: jax.Array, cont: jax.Array) -> jax.Array:
     # fleet) or match the leaf's leading axes; broadcast from the left.
     done = jnp.reshape(done, done.shape + (1,) * (cont.ndim - done.ndim))
     return jnp.where(done, fresh, cont)
+
+
+def only_where(pred: jax.Array, compute, operand: jax.Array, otherwise):
+    """``compute(operand)`` where ``pred``, else ``otherwise`` (same pytree); computed only when needed.
+
+    A ``lax.while_loop`` that runs at most once: a family's cheaper auto-reset. Under ``vmap``, ``jnp.where``
+    and ``lax.cond`` both evaluate ``compute`` for every environment on every step; a batched while runs its
+    body only while some environment of the batch needs it (then selects per environment), so a batch whose
+    episodes start and end together (a fleet's shift, rware's 500 steps) pays for the reset on one step in
+    ``max_steps``. ``operand`` (an unsigned integer array, e.g. key data) rides in the loop carry and is
+    changed by the body, so XLA cannot hoist ``compute`` out of the loop as loop-invariant.
+    """
+    def body(carry):
+        _, data, _ = carry
+        return jnp.zeros((), dtype=bool), data + np.asarray(1, dtype=data.dtype), compute(data)
+
+    return jax.lax.while_loop(lambda carry: carry[0], body, (jnp.asarray(pred), operand, otherwise))[2]

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from wrl_jax.core.random import random_words, split_key, words_modulo
 from wrl_jax.envs.fleet.conflicts import propose_cells, resolve_cells
@@ -52,24 +51,6 @@ def draw_tasks(key: jax.Array, params: FleetParams, num_robots: int) -> FleetTas
 def step_keys(key: jax.Array) -> tuple[jax.Array, jax.Array]:
     """``(transition key, reset key)`` of ``Fleet.step(key, ...)``: ``jax.random.split(key)``, bit for bit."""
     return split_key(key, 0), split_key(key, 1)
-
-
-def only_where(pred: jax.Array, compute, operand: jax.Array, otherwise):
-    """``compute(operand)`` where ``pred``, else ``otherwise`` (same pytree); computed only when needed.
-
-    A ``lax.while_loop`` that runs at most once. Why not ``jnp.where`` or ``lax.cond``: under
-    ``vmap`` both evaluate ``compute`` for every env on every step. A batched while runs its body
-    only while some env of the batch still needs it (then selects per env), so the auto-reset of
-    fleets that share a shift clock (the usual batch: all start together, all truncate together)
-    costs one batch-wide test on the steps between truncations. ``operand`` (an unsigned integer
-    array, e.g. key data) rides in the loop carry and is changed by the body, so XLA cannot hoist
-    ``compute`` out of the loop as loop-invariant (which would run it on every step again).
-    """
-    def body(carry):
-        _, data, _ = carry
-        return jnp.zeros((), dtype=bool), data + np.asarray(1, dtype=data.dtype), compute(data)
-
-    return jax.lax.while_loop(lambda carry: carry[0], body, (jnp.asarray(pred), operand, otherwise))[2]
 
 
 def targets(state: FleetState, params: FleetParams) -> jax.Array:

@@ -8,7 +8,7 @@ the observation :mod:`wrl_jax.envs.fleet.observation`, the conflict rule
 split(key)``, the transition draws from ``key_step``, the auto-reset on truncation from
 ``key_reset``; see :func:`~wrl_jax.envs.fleet.dynamics.step_keys`), computed more cheaply:
 threefry written out, the auto-reset only on steps where some env truncates
-(:func:`~wrl_jax.envs.fleet.dynamics.only_where`), observations from int32 bit masks.
+(:func:`~wrl_jax.core.environment.only_where`), observations from int32 bit masks.
 """
 
 from __future__ import annotations
@@ -21,9 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from wrl_jax.core.environment import Environment
+from wrl_jax.core.environment import Environment, only_where
 from wrl_jax.core.gymnax_base import spaces
-from wrl_jax.core.spaces import MultiDiscrete
 from wrl_jax.core.observation import (
     bit_windows_supported,
     expand_observations,
@@ -31,7 +30,8 @@ from wrl_jax.core.observation import (
     window_size,
 )
 from wrl_jax.core.random import split_key
-from wrl_jax.envs.fleet.dynamics import NUM_ACTIONS, WAIT, draw_tasks, fleet_reset, fleet_transition, only_where
+from wrl_jax.core.spaces import MultiDiscrete
+from wrl_jax.envs.fleet.dynamics import NUM_ACTIONS, WAIT, draw_tasks, fleet_reset, fleet_transition
 from wrl_jax.envs.fleet.observation import MEMORY_SIZE, fleet_observation, global_state, observation_parts
 from wrl_jax.envs.fleet.types import FleetParams, FleetState
 
@@ -139,7 +139,7 @@ class Fleet(Environment[FleetState, FleetParams]):
         """The base class's ``step`` (same keys, draws, outputs and bits), with a cheaper auto-reset.
 
         The auto-reset (reset key, task draw, fresh observation) runs only on steps where some env
-        truncates (:func:`~wrl_jax.envs.fleet.dynamics.only_where`), and the select of reset against reached observation is
+        truncates (:func:`~wrl_jax.core.environment.only_where`), and the select of reset against reached observation is
         done on their compact form (:func:`~wrl_jax.envs.fleet.observation.observation_parts`), expanded once per output.
         """
         params = self.default_params if params is None else params

@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from wrl_jax.core.environment import Environment
+from wrl_jax.core.environment import Environment, only_where
 from wrl_jax.core.gymnax_base import spaces
 from wrl_jax.core.random import split_key
 from wrl_jax.core.spaces import MultiDiscrete
@@ -100,7 +100,7 @@ class Rware(Environment[RwareState, RwareParams]):
 
         Under ``vmap`` the base class computes a fresh episode (its draws and observation) for every
         environment on every step and selects; that was three quarters of a step. Here it runs inside a
-        batched ``while`` that iterates only while some environment of the batch ended (:func:`_only_where`):
+        batched ``while`` that iterates only while some environment of the batch ended (:func:`~wrl_jax.core.environment.only_where`):
         environments started together end together (rware's 500 steps), so one step in 500 pays for it.
         """
         params = self.default_params if params is None else params
@@ -114,7 +114,7 @@ class Rware(Environment[RwareState, RwareParams]):
             return fresh, fresh_obs
 
         data = jax.random.key_data(key) if typed else key
-        next_state, next_obs = _only_where(terminated | truncated, reset, data, (reached, obs))
+        next_state, next_obs = only_where(terminated | truncated, reset, data, (reached, obs))
         info = {**info, "final_obs": obs, "final_observation": obs}
         return next_obs, next_state, reward, terminated, truncated, info
 
@@ -214,18 +214,3 @@ class Rware(Environment[RwareState, RwareParams]):
             "time": spaces.Discrete(np.iinfo(np.int32).max),
             "inactive": spaces.Discrete(np.iinfo(np.int32).max),
         })
-
-
-def _only_where(pred: jax.Array, compute, operand: jax.Array, otherwise):
-    """``compute(operand)`` where ``pred``, else ``otherwise`` (same pytree), computed only when some ``pred`` holds.
-
-    A ``lax.while_loop`` that runs at most once (the fleet's device, :func:`wrl_jax.envs.fleet.dynamics.only_where`):
-    under ``vmap`` a ``where`` or ``lax.cond`` evaluates ``compute`` for every environment on every step, a batched
-    ``while`` only while some environment needs it. ``operand`` (unsigned key data) changes in the carry, so XLA
-    cannot hoist ``compute`` out of the loop.
-    """
-    def body(carry):
-        _, data, _ = carry
-        return jnp.zeros((), bool), data + np.asarray(1, dtype=data.dtype), compute(data)
-
-    return jax.lax.while_loop(lambda carry: carry[0], body, (jnp.asarray(pred), operand, otherwise))[2]
