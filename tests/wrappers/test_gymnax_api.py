@@ -35,8 +35,10 @@ from wrl_jax.core.registry import GYMNAX_PREFIX
 RWARE_SAMPLE = ("rware-tiny-4ag-v2",)
 """rware's 228 ids share one program per size and agent count: one of them stands for the family here
 (its registry and every id are tested in tests/envs/rware/test_rware_env.py)."""
-SAME_PROGRAM_AS = {"Continuous-Warehouse-12x12-v0": "Continuous-Warehouse-8x8-v0"}
-"""Names whose environment differs from one checked here only by its grid's size (the same code)."""
+SAME_PROGRAM_AS = {"Continuous-Warehouse-12x12-v0": "Continuous-Warehouse-12x12-Dynamic-v0",
+                   "Continuous-Warehouse-8x8-v0": "Continuous-Warehouse-12x12-Dynamic-v0"}
+"""Names whose environment is the class of one checked here, with another grid size or no moving obstacles
+(the same code: the obstacle arrays are empty); the family's own tests cover each setting."""
 NAMES = [name for name in wrl_jax.registered_names()
          if (not name.startswith("rware-") or name in RWARE_SAMPLE) and name not in SAME_PROGRAM_AS]
 wrl_jax.register_with_gymnax()  # gymnax was imported after wrl_jax (by conftest): the documented call

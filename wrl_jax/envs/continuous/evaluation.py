@@ -26,7 +26,6 @@ from flax import struct
 from wrl_jax.core.evaluation import FamilyEvaluation, FinalContext, TrainRate
 from wrl_jax.core.evaluation import number_text as _num
 from wrl_jax.core.evaluation import percent_text as _pct
-from wrl_jax.envs.continuous.dynamics import reset_core
 from wrl_jax.envs.continuous.env import ContinuousWarehouse
 from wrl_jax.envs.continuous.types import ContinuousParams
 
@@ -66,7 +65,7 @@ def run_episode(act: Callable[[jax.Array, Any], jax.Array], env: ContinuousWareh
     """
     reset_key, step_key = jax.random.split(key)
     draws = env.reset_draws(reset_key, params).replace(item_index=jnp.asarray(item_index, jnp.int32))
-    obs, state = reset_core(draws, params)
+    obs, state = env.reset_with(draws, params)
     zero = jnp.zeros((), jnp.int32)
     init = (obs, state, jnp.zeros((), bool), jnp.zeros((), bool), jnp.zeros((), jnp.float32), zero, zero - 1)
 

@@ -11,6 +11,7 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
+from wrl_jax.envs.continuous import geodesic
 from wrl_jax.envs.continuous.env import ContinuousWarehouse
 from wrl_jax.envs.continuous.types import ContinuousParams
 from wrl_jax.envs.warehouse import maps
@@ -37,6 +38,9 @@ DEFAULTS: dict[str, Any] = {
 }
 """CONTINUOUS_SPEC.md's parameters (every one an override of :func:`make_continuous`)."""
 
+SHAPINGS = ("manhattan", "geodesic")
+"""The shaping term's distance: the contract's, or around the shelves (:mod:`.geodesic`)."""
+
 POSITIVE = ("dt", "v_max", "w_max", "robot_radius", "reach_radius", "lidar_range", "obstacle_radius")
 
 
@@ -49,12 +53,17 @@ def obstacle_cells(layout: Layout) -> np.ndarray:
 
 
 def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_rays: int = 32,
-                    num_obstacles: int = 0, name: str = "Continuous-Warehouse",
-                    **overrides: Any) -> tuple[ContinuousWarehouse, ContinuousParams]:
+                    num_obstacles: int = 0, name: str = "Continuous-Warehouse", shaping: str = "manhattan",
+                    observe_target: bool = False, **overrides: Any) -> tuple[ContinuousWarehouse, ContinuousParams]:
     """``(env, params)`` for ``layout`` (a :class:`Layout` or an ASCII map of SPEC.md).
 
+    ``shaping="geodesic"`` measures the shaping term's distance around the shelves instead of the
+    contract's Manhattan distance (:mod:`wrl_jax.envs.continuous.geodesic`); ``observe_target=True``
+    appends the target seen from the robot to the observation (:func:`~.env.target_features`). Both
+    are for learners; the registered names are the contract's.
+
     Raises:
-        ValueError: naming the problem: an unknown override, a non-positive length or speed, a
+        ValueError: naming the problem: an unknown override or shaping, a non-positive length or speed, a
             ``max_steps`` missing for a layout other than the study's, too few cells for the
             obstacles, or a gain range that is not ``0 < low <= high``.
     """
@@ -62,6 +71,8 @@ def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_r
     unknown = sorted(set(overrides) - set(DEFAULTS))
     if unknown:
         raise ValueError(f"unknown continuous warehouse setting(s) {unknown}; known: {sorted(DEFAULTS)}")
+    if shaping not in SHAPINGS:
+        raise ValueError(f"shaping must be one of {SHAPINGS} for a continuous warehouse, got {shaping!r}")
     settings = {**DEFAULTS, **overrides}
     if max_steps is None:
         max_steps = study_max_steps(layout)
@@ -98,7 +109,11 @@ def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_r
         start_cell=jnp.asarray(layout.start, jnp.int32), goal=jnp.asarray(point(layout.goal)),
         goal_cell=jnp.asarray(layout.goal, jnp.int32), items=jnp.asarray(items),
         num_items=jnp.asarray(len(layout.items), jnp.int32), obstacle_cells=jnp.asarray(eligible))
-    return ContinuousWarehouse(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name), params
+    if not isinstance(observe_target, (bool, np.bool_)):
+        raise ValueError(f"observe_target must be True or False, got {observe_target!r}")
+    env = ContinuousWarehouse(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
+                              observe_target=bool(observe_target))
+    return geodesic.with_fields(env, params) if shaping == "geodesic" else (env, params)
 
 
 NAMED_MAPS = {"8x8": maps.WAREHOUSE_8X8, "12x12": maps.WAREHOUSE_12X12}

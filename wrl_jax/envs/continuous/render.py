@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from wrl_jax.envs.continuous.dynamics import OBS_SCALARS, reset_core
+from wrl_jax.envs.continuous.dynamics import OBS_SCALARS
 from wrl_jax.envs.continuous.geometry import TWO_PI
 from wrl_jax.envs.continuous.types import ContinuousParams, ContinuousState
 from wrl_jax.envs.warehouse.render import COLORS as GRID_COLORS
@@ -182,7 +182,7 @@ def _run_episode(env, policy_fn, num_steps: int, cell_size: int, rays: bool, par
     reset_key, step_key = jax.random.split(key)
     draws = env.reset_draws(reset_key, params)
     draws = draws.replace(item_index=jnp.where(item_index >= 0, item_index, draws.item_index))
-    obs, state = reset_core(draws, params)
+    obs, state = env.reset_with(draws, params)
 
     def step(carry, _):
         obs, state, done = carry

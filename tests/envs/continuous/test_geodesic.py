@@ -1,0 +1,124 @@
+"""Geodesic shaping (wrl_jax.envs.continuous.geodesic): the contract's MDP with the shaping distance measured
+around the shelves.
+
+The fields must be the length of the way around the shelves (checked against the exact any-angle
+lengths of the yardstick), the environment must be the contract's in everything but the reward, and the
+reward must differ from the contract's by exactly the change of potential (so a whole episode's shaping
+telescopes to the distance covered).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from wrl_jax.envs.continuous import geodesic
+from wrl_jax.envs.continuous import shortest_path as spath
+from wrl_jax.envs.continuous.registration import make_continuous, make_named
+
+
+@pytest.fixture(scope="module")
+def study_12x12():
+    return make_named("12x12"), make_named("12x12", shaping="geodesic")
+
+
+def test_fields_are_the_way_around_the_shelves_within_three_percent(study_12x12):
+    (_, params), (_, shaped) = study_12x12
+    clearance = float(params.robot_radius) + geodesic.SPARE
+    to_item, to_goal = spath.item_legs(np.asarray(params.shelves), np.asarray(params.start), np.asarray(params.goal),
+                                       np.asarray(params.items), clearance)
+    items = int(params.num_items)
+    field_to_item = np.array([float(geodesic.read_field(shaped.fields[k], params.start)) for k in range(items)])
+    field_to_goal = np.array([float(geodesic.read_field(shaped.fields[-1], params.items[k])) for k in range(items)])
+    # The exact any-angle length at the field's clearance: the lattice's 16 directions make it a little longer
+    # (a little shorter where a route rounds a corner between lattice points).
+    for lattice, exact in ((field_to_item, to_item), (field_to_goal, to_goal)):
+        assert np.all(np.abs(lattice / exact - 1) < 0.03), np.round(lattice / exact, 3)
+    # ... which is metres longer than the straight line where shelf rows stand between.
+    straight = np.linalg.norm(np.asarray(params.items) - np.asarray(params.goal), axis=-1)[:items]
+    assert np.max(field_to_goal - straight) > 2.0
+
+
+def test_routes_keep_their_margin_the_potential_rises_off_them_and_an_enclosed_target_is_unreachable():
+    shelves = np.zeros((3, 5), bool)
+    shelves[:, 2] = True  # a full column: the right half cannot be reached from the left
+    margin = 0.4
+    free = geodesic.free_lattice(shelves, margin)
+    xs = np.arange(free.shape[1]) / geodesic.RESOLUTION
+    assert not free[:, (xs > 2 - margin) & (xs < 3 + margin)].any() and not free[:, xs < margin].any()
+    assert free[15, 5] and free[15, 45]
+    fields = geodesic.distance_fields(shelves, np.array([[0.5, 1.5], [4.5, 1.5]]), margin)
+    assert fields[0, 15, 5] == 0.0 and fields[0, 15, 45] == geodesic.UNREACHABLE
+    assert fields[1, 15, 45] == 0.0 and fields[1, 15, 5] == geodesic.UNREACHABLE
+    np.testing.assert_allclose(fields[0, 15, 15], 1.0, atol=1e-6)  # 1 m straight along a row
+    # Off the routes (closer than the margin to the shelf column) the distance keeps growing towards it.
+    row = fields[0, 15, 16:20]
+    np.testing.assert_allclose(np.diff(row), 0.1, atol=1e-6)
+
+
+def test_everything_but_the_reward_is_the_contracts_and_the_shaping_telescopes(study_12x12):
+    (plain, params), (shaped, shaped_params) = study_12x12
+    steps = 120
+
+    def rollout(env, p, key):
+        obs, state = env.reset(key, p)
+
+        def body(state, t):
+            action = jax.random.uniform(jax.random.fold_in(key, t), (2,), minval=-1.0, maxval=1.0)
+            action = action.at[0].set(jnp.abs(action[0]))  # mostly forward: the robot travels
+            k = jax.random.fold_in(key, 1000 + t)
+            obs, nxt, reward, term, trunc, info = env.step(k, state, action, p)
+            return nxt, (obs, nxt.pos, state.pos, state.carrying, state.item, reward, term | trunc)
+
+        _, trace = jax.lax.scan(body, state, jnp.arange(steps))
+        return trace
+
+    key = jax.random.key(3)
+    plain_trace = jax.jit(rollout, static_argnums=0)(plain, params, key)
+    shaped_trace = jax.jit(rollout, static_argnums=0)(shaped, shaped_params, key)
+    for a, b in zip(plain_trace[:5], shaped_trace[:5]):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    obs, after, before, carrying, item, reward, ended = (np.asarray(x) for x in shaped_trace)
+    live = ~ended  # where an episode ended, the carried state is the next episode's start, not the point reached
+    assert live.sum() > 50
+    # Per step: the shaped reward minus the contract's is shaping_coef * (the potential's change minus Manhattan's).
+    target = np.where(carrying[:, None], np.asarray(params.goal)[None], item)
+    index = np.where(carrying, shaped_params.fields.shape[0] - 1,
+                     np.argmin(np.abs(np.asarray(params.items)[None] - item[:, None]).sum(-1), axis=1))
+    read = jax.vmap(lambda k, p: geodesic.read_field(shaped_params.fields[k], p))
+    around = np.asarray(read(index, before)) - np.asarray(read(index, after))
+    manhattan = np.abs(before - target).sum(-1) - np.abs(after - target).sum(-1)
+    expected = np.asarray(plain_trace[5]) + float(params.shaping_coef) * (around - manhattan)
+    np.testing.assert_allclose(reward[live], expected[live], atol=1e-4)
+    assert np.abs(around - manhattan)[live].max() > 0.01  # the two distances really differ on this rollout
+
+
+def test_geodesic_shaping_is_refused_where_it_is_not_built():
+    with pytest.raises(ValueError, match="shaping must be one of"):
+        make_continuous(". . .\nS 0 G\n. . .", max_steps=20, shaping="bfs")
+
+
+def test_observe_target_appends_the_target_in_the_robots_frame():
+    """The contract's values unchanged, then forward/left/distance over the map's side and the bearing."""
+    plain, params = make_named("8x8")
+    seen, seen_params = make_named("8x8", observe_target=True)
+    assert seen.obs_size == plain.obs_size + 5 and seen.observation_space().shape == (seen.obs_size,)
+    key = jax.random.key(0)
+    obs, state = seen.reset(key, seen_params)
+    obs0, _ = plain.reset(key, params)
+    np.testing.assert_array_equal(obs[: plain.obs_size], obs0)
+    turn = jnp.array([0.0, 1.0])  # turn on the spot: the target's bearing rotates with the robot
+    for t in range(3):
+        obs, state, *_ = seen.step(jax.random.key(t), state, turn, seen_params)
+        target = np.asarray(state.item)  # not carrying: the item
+        offset = target - np.asarray(state.pos)
+        theta = float(state.theta)
+        forward = offset[0] * np.cos(theta) + offset[1] * np.sin(theta)
+        left = -offset[0] * np.sin(theta) + offset[1] * np.cos(theta)
+        distance = np.hypot(*offset)
+        expected = [forward / 8, left / 8, distance / 8, forward / distance, left / distance]
+        np.testing.assert_allclose(np.asarray(obs[plain.obs_size:]), expected, atol=1e-5)
+    with pytest.raises(ValueError, match="observe_target must be True or False"):
+        make_named("8x8", observe_target="yes")

@@ -1,0 +1,186 @@
+"""Shaping by the distance around the shelves: the contract's MDP with a potential that points past them.
+
+The contract shapes with the Manhattan distance to the target (CONTINUOUS_SPEC.md, as in the study).
+Behind a shelf row that distance points into the shelves, and an off-policy learner whose first
+data are mostly collisions learns to stand still. :class:`GeodesicShaping` keeps every transition
+of the contract (state, observation, events, termination) and replaces only ``d`` in the shaping
+term by the length of the shortest way around the shelves, so the optimal policies are unchanged
+(a potential-based shaping, Ng et al. 1999) and the signal leads round the rows.
+
+The distances live on a lattice of ``1/resolution`` metres, one field per item slot and one for the
+goal, computed once per layout (16-connected shortest paths, within 3 % of the any-angle length),
+read at the robot's centre by bilinear interpolation. Routes keep the robot's radius plus
+``SPARE`` from shelves and walls, so following the potential does not graze corners; lattice points
+closer than that take the value of their best free neighbour plus the step, so the potential rises
+towards the shelves instead of leaving holes in the interpolation.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from wrl_jax.envs.continuous.env import ContinuousWarehouse
+from wrl_jax.envs.continuous.types import ContinuousParams, ContinuousState
+
+RESOLUTION = 10
+"""Lattice points per metre."""
+SPARE = 0.1
+"""Metres the field's routes keep from shelves and walls beyond the robot's radius."""
+UNREACHABLE = 1e4
+"""The distance read where the target cannot be reached (finite, so differences stay 0, not NaN)."""
+FILL_REACH = 4
+"""Lattice steps over which points off the routes look for a route point (0.4 m at 10 per metre)."""
+MOVES = tuple((dy, dx) for dy in range(-2, 3) for dx in range(-2, 3)
+              if (dy, dx) != (0, 0) and np.gcd(abs(dy), abs(dx)) == 1)
+"""The 16 lattice moves: the 8 neighbours and the 8 knight's moves."""
+
+
+@struct.dataclass
+class GeodesicParams(ContinuousParams):
+    """The contract's params with ``fields``: ``(I + 1, ny, nx)`` metres to each item slot, then to the goal."""
+
+    fields: jax.Array = None
+
+
+def free_lattice(shelves: np.ndarray, margin: float, resolution: int = RESOLUTION) -> np.ndarray:
+    """``(H r + 1, W r + 1)`` bool: lattice points at least ``margin`` from every shelf square and the boundary."""
+    height, width = shelves.shape
+    ys, xs = np.meshgrid(np.arange(height * resolution + 1) / resolution,
+                         np.arange(width * resolution + 1) / resolution, indexing="ij")
+    free = (xs >= margin) & (xs <= width - margin) & (ys >= margin) & (ys <= height - margin)
+    for row, col in zip(*np.nonzero(shelves)):
+        dx = np.clip(xs, col, col + 1) - xs
+        dy = np.clip(ys, row, row + 1) - ys
+        free &= dx * dx + dy * dy >= margin * margin
+    return free
+
+
+def _move_allowed(free: np.ndarray, dy: int, dx: int) -> np.ndarray:
+    """Where the move ``(dy, dx)`` joins two points on the routes (and, for a knight's move, passes
+    between two more)."""
+    ny, nx = free.shape
+    padded = np.pad(free, 2, constant_values=False)
+
+    def at(oy, ox):  # free[y + oy, x + ox] for every (y, x), False off the lattice
+        return padded[2 + oy: 2 + oy + ny, 2 + ox: 2 + ox + nx]
+
+    allowed = free & at(dy, dx)
+    if abs(dy) == 2:  # a knight's move passes between two points: both must be free
+        allowed &= at(dy // 2, 0) & at(dy // 2, dx)
+    elif abs(dx) == 2:
+        allowed &= at(0, dx // 2) & at(dy, dx // 2)
+    return allowed
+
+
+def distance_fields(shelves: np.ndarray, targets: np.ndarray, margin: float,
+                    resolution: int = RESOLUTION) -> np.ndarray:
+    """``(K, ny, nx)`` float32: the lattice distance (metres) from every lattice point to each of ``targets`` ``(K, 2)``.
+
+    Bellman-Ford on the 16-connected lattice, all targets at once, in a compiled ``while`` that stops
+    when nothing shortens (at most one pass per lattice point). Routes run over the points at least
+    ``margin`` from shelves and walls; the other points only receive. Targets are snapped to the
+    nearest lattice point; a target that is not on the routes leaves its field unreachable.
+    """
+    free = free_lattice(np.asarray(shelves, bool), margin, resolution)
+    allowed = np.stack([_move_allowed(free, dy, dx) for dy, dx in MOVES])
+    lengths = np.array([np.hypot(dy, dx) / resolution for dy, dx in MOVES], np.float32)
+    cells = np.rint(np.asarray(targets, np.float64) * resolution).astype(int)
+    start = np.full((len(cells),) + free.shape, np.inf, np.float32)
+    for k, (x, y) in enumerate(cells):
+        if 0 <= y < free.shape[0] and 0 <= x < free.shape[1] and free[y, x]:
+            start[k, y, x] = 0.0
+    fields = np.asarray(_relax(jnp.asarray(start), jnp.asarray(allowed), jnp.asarray(lengths), int(free.sum())))
+    return np.minimum(_fill_off_routes(fields, free), UNREACHABLE).astype(np.float32)
+
+
+def _fill_off_routes(fields: np.ndarray, free: np.ndarray, reach: int = FILL_REACH) -> np.ndarray:
+    """Points off the routes take the best route point within ``reach`` lattice steps, plus the straight
+    distance to it: the potential rises towards shelves and walls instead of leaving holes. ``reach`` is
+    far less than a shelf is thick, so no value leaks through a shelf from its other side."""
+    ny, nx = free.shape
+    on_routes = np.where(free, fields, np.inf)
+    padded = np.pad(on_routes, ((0, 0), (reach, reach), (reach, reach)), constant_values=np.inf)
+    best = on_routes.copy()
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            if 0 < dy * dy + dx * dx <= reach * reach:
+                shifted = padded[:, reach + dy: reach + dy + ny, reach + dx: reach + dx + nx]
+                best = np.minimum(best, shifted + np.hypot(dy, dx) / RESOLUTION)
+    return np.where(free, fields, best)
+
+
+@jax.jit(static_argnums=3)
+def _relax(start: jax.Array, allowed: jax.Array, lengths: jax.Array, bound: int) -> jax.Array:
+    pad = 2
+
+    def sweep(dist):
+        padded = jnp.pad(dist, ((0, 0), (pad, pad), (pad, pad)), constant_values=jnp.inf)
+        ny, nx = dist.shape[1:]
+        best = dist
+        for m, (dy, dx) in enumerate(MOVES):
+            neighbour = padded[:, pad + dy: pad + dy + ny, pad + dx: pad + dx + nx]
+            best = jnp.minimum(best, jnp.where(allowed[m], neighbour + lengths[m], jnp.inf))
+        return best
+
+    def cond(carry):
+        dist, previous, count = carry
+        return (count < bound) & jnp.any(dist != previous)
+
+    def body(carry):
+        dist, _, count = carry
+        return sweep(dist), dist, count + 1
+
+    dist, _, _ = jax.lax.while_loop(cond, body, (sweep(start), start, 1))
+    return dist
+
+
+def read_field(field: jax.Array, point: jax.Array, resolution: int = RESOLUTION) -> jax.Array:
+    """The field's value at ``point`` ``(x, y)`` metres: bilinear between the four lattice points around it."""
+    ny, nx = field.shape
+    gx = jnp.clip(point[0] * resolution, 0.0, nx - 1.0)
+    gy = jnp.clip(point[1] * resolution, 0.0, ny - 1.0)
+    x0 = jnp.minimum(jnp.floor(gx), nx - 2).astype(jnp.int32)
+    y0 = jnp.minimum(jnp.floor(gy), ny - 2).astype(jnp.int32)
+    fx, fy = gx - x0, gy - y0
+    top = field[y0, x0] * (1 - fx) + field[y0, x0 + 1] * fx
+    bottom = field[y0 + 1, x0] * (1 - fx) + field[y0 + 1, x0 + 1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def manhattan(point: jax.Array, target: jax.Array) -> jax.Array:
+    """The contract's ``d``: ``|px - tx| + |py - ty|`` in float32."""
+    return jnp.abs(point[0] - target[0]) + jnp.abs(point[1] - target[1])
+
+
+class GeodesicShaping(ContinuousWarehouse):
+    """The contract's warehouse, the shaping term's distance measured around the shelves (see the module).
+
+    Build it with :func:`make_geodesic` (or ``wrl_jax.make(name, shaping="geodesic")``): ``params``
+    are :class:`GeodesicParams`. Everything but the reward is the contract's, bit for bit.
+    """
+
+    def transition(self, key: jax.Array, state: ContinuousState, action: Any, params: GeodesicParams):
+        obs, reached, reward, terminated, truncated, info = super().transition(key, state, action, params)
+        slot = jnp.argmin(jnp.sum(jnp.abs(params.items - state.item), axis=-1))
+        index = jnp.where(state.carrying, params.fields.shape[0] - 1, slot)
+        field = params.fields[index]
+        target = jnp.where(state.carrying, params.goal, state.item)
+        contract = manhattan(state.pos, target) - manhattan(reached.pos, target)
+        around = read_field(field, state.pos) - read_field(field, reached.pos)
+        return obs, reached, reward + params.shaping_coef * (around - contract), terminated, truncated, info
+
+
+def with_fields(env: ContinuousWarehouse, params: ContinuousParams) -> tuple[GeodesicShaping, GeodesicParams]:
+    """``(env, params)`` of :class:`GeodesicShaping` over the same layout and settings."""
+    targets = np.concatenate([np.asarray(params.items), np.asarray(params.goal)[None]])
+    fields = distance_fields(np.asarray(params.shelves), targets, float(params.robot_radius) + SPARE)
+    shaped_params = GeodesicParams(**{f: getattr(params, f) for f in params.__dataclass_fields__},
+                                   fields=jnp.asarray(fields))
+    shaped = GeodesicShaping(shaped_params, num_rays=env.num_rays, num_obstacles=env.num_obstacles, name=env.name,
+                             observe_target=env.observe_target)
+    return shaped, shaped_params
