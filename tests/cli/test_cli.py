@@ -188,8 +188,20 @@ def test_an_environment_may_bring_its_own_default_preset(tmp_path):
 def test_shaping_flag_reaches_the_procedural_warehouse_and_is_refused_on_the_study_maps(tmp_path):
     command = cli_options.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--shaping", "bfs", "--out", str(tmp_path / "a")])
     assert command.env.overrides()["shaping"] == "bfs"
-    with pytest.raises(ValueError, match="--shaping: fleet or procedural options"):
+    with pytest.raises(ValueError, match="--shaping: continuous or fleet or procedural options"):
         cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--shaping", "bfs", "--out", str(tmp_path / "b")])
+
+
+def test_continuous_learners_see_the_target_unless_told_otherwise(tmp_path):
+    """Every learner's command gives the continuous study maps ``observe_target``; the flag turns it off."""
+    for algo in ("ppo", "sac", "td3"):
+        command = cli_options.parse(algo, ["--env", "Continuous-Warehouse-8x8-v0", "--out", str(tmp_path / algo)])
+        assert command.env.overrides()["observe_target"] is True
+    command = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--observe-target", "False",
+                                        "--out", str(tmp_path / "off")])
+    assert command.env.overrides().get("observe_target") is False
+    with pytest.raises(ValueError, match="--observe-target: continuous options"):
+        cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--observe-target", "True", "--out", str(tmp_path / "x")])
 
 
 def test_encoder_flag_builds_the_propagation_policy_and_refuses_an_env_without_a_map(tmp_path):

@@ -50,7 +50,7 @@ class EnvOptions:
     view_radius: int | None = None
     """fleet and procedural environments: radius V of each robot's egocentric window"""
     shaping: str | None = None
-    """fleet and procedural environments: distance of the shaping term, bfs or manhattan"""
+    """distance of the shaping term: fleet and procedural environments bfs or manhattan, continuous ones manhattan or geodesic"""
     pool_size: int | None = None
     """procedural environments: layouts in the pool episodes reset from"""
     pool_refresh: int | None = None
@@ -64,6 +64,8 @@ class EnvOptions:
     """procedural environments: a window channel of the cells visited since the current target was set"""
     visit_levels: int | None = None
     """procedural environments: the visited channel counts visits up to this many (1: visited or not)"""
+    observe_target: bool | None = None
+    """continuous environments: the target seen from the robot (forward, left, distance, bearing) after the contract's values"""
     observe_rays: bool | None = None
     """procedural environments: the free runs from the robot up, down, left and right (a range sensor)"""
 
@@ -206,7 +208,8 @@ FAMILY_OPTIONS = {
     "observe_priority": ("fleet",),
     "observe_headings": ("fleet",),
     "view_radius": ("fleet", "procedural"),
-    "shaping": ("fleet", "procedural"),
+    "shaping": ("fleet", "procedural", "continuous"),
+    "observe_target": ("continuous",),
     "pool_size": ("procedural",),
     "pool_refresh": ("procedural",),
     "observe_last_action": ("procedural", "fleet"),
