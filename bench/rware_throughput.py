@@ -5,13 +5,14 @@
     python bench/rware_throughput.py --jumanji-python /tmp/jumanji-venv/bin/python
 
 Ours: ``jit(lax.scan(vmap(env.step)))`` over ``T`` steps of ``B`` environments (auto-reset included), uniform
-random actions drawn inside the scan, compile time measured apart (``lower().compile()``), one warm-up call,
-then the best of ``--repeats`` timed calls (``block_until_ready``). rware: ``Warehouse.step`` in a Python
-loop, one environment, the same random policy (actions drawn beforehand), reset when done. Jumanji (its own
-virtual environment: ``python -m venv /tmp/jumanji-venv && /tmp/jumanji-venv/bin/pip install jumanji``): its
-``RobotWarehouse`` with the same layout, agents, sensor range and queue, behind ``AutoResetWrapper``, timed as
-ours, in a child process of that interpreter. Jumanji's warehouse is not rware's rules (agents move one after
-another, an episode ends on a collision, rewards are shared): a speed reference only.
+random actions drawn up front in the timed call (:func:`draws`), compile time measured apart
+(``lower().compile()``), one warm-up call, then the best of ``--repeats`` timed calls (``block_until_ready``).
+rware: ``Warehouse.step`` in a Python loop, one environment, the same random policy (actions drawn beforehand),
+reset when done. Jumanji (its own virtual environment: ``python -m venv /tmp/jumanji-venv &&
+/tmp/jumanji-venv/bin/pip install jumanji``): its ``RobotWarehouse`` with the same layout, agents, sensor range
+and queue, behind ``AutoResetWrapper``, timed as ours, in a child process of that interpreter. Jumanji's
+warehouse is not rware's rules (agents move one after another, an episode ends on a collision, rewards are
+shared): a speed reference only.
 
 ``--profile`` times variants of our step with one part left out, at one batch size, to say what bounds it. Results: ``--out``/throughput.json and throughput.md; every ratio is from the same run.
 """
@@ -67,21 +68,34 @@ def ours_scan(env, params):
         obs, state = start(jax.random.key(1))
 
         def run(key, state, obs):
-            def body(carry, t):  # the observation is carried, as a learner carries it: it stays computed
+            action_key, env_key = jax.random.split(key)
+            actions = draws(action_key, steps, batch, env.num_agents)
+            keys = jax.random.split(env_key, steps * batch).reshape(steps, batch)
+
+            def body(carry, inputs):  # the observation is carried, as a learner carries it: it stays computed
                 state, _, total = carry
-                step_key = jax.random.fold_in(key, t)
-                action_key, env_key = jax.random.split(step_key)
-                actions = jax.random.randint(action_key, (batch, env.num_agents), 0, 5, dtype=jnp.int32)
-                obs, state, reward, *_ = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
-                    jax.random.split(env_key, batch), state, actions, params)
+                keys, action = inputs
+                obs, state, reward, *_ = jax.vmap(env.step, in_axes=(0, 0, 0, None))(keys, state, action, params)
                 return (state, obs, total + reward.sum()), None
 
-            (_, obs, total), _ = jax.lax.scan(body, (state, obs, jnp.zeros(())), jnp.arange(steps))
+            (_, obs, total), _ = jax.lax.scan(body, (state, obs, jnp.zeros(())), (keys, actions))
             return obs, total
 
         return jax.jit(run), (jax.random.key(0), state, obs)
 
     return make
+
+
+def draws(key, steps: int, batch: int, agents: int):
+    """Every step's random actions, drawn up front in the timed call (ours and Jumanji's alike).
+
+    Why up front: ``jax.random`` runs threefry as a CPU loop; drawn inside each step it cost a fifth of
+    our step, a cost of the harness, not of the environment.
+    """
+    import jax
+    import jax.numpy as jnp
+
+    return jax.random.randint(key, (steps, batch, agents), 0, 5, dtype=jnp.int32)
 
 
 def state_bytes(env, batch: int) -> int:
@@ -154,13 +168,13 @@ def jumanji_child(name: str, batches: list[int], repeats: int) -> None:
         state, timestep = jax.jit(lambda key: jax.vmap(env.reset)(jax.random.split(key, batch)))(jax.random.key(1))
 
         def run(key, state, view):
-            def body(carry, t):
+            def body(carry, actions):
                 state, _, total = carry
-                actions = jax.random.randint(jax.random.fold_in(key, t), (batch, agents), 0, 5, dtype=jnp.int32)
                 state, timestep = jax.vmap(env.step)(state, actions)
                 return (state, timestep.observation.agents_view, total + timestep.reward.sum()), None
 
-            (_, view, total), _ = jax.lax.scan(body, (state, view, jnp.zeros(())), jnp.arange(steps))
+            actions = draws(jax.random.split(key)[0], steps, batch, agents)
+            (_, view, total), _ = jax.lax.scan(body, (state, view, jnp.zeros(())), actions)
             return view, total
 
         return jax.jit(run), (jax.random.key(0), state, timestep.observation.agents_view)
@@ -210,8 +224,8 @@ def profile(name: str, batch: int, repeats: int) -> dict:
         if variant == "transition":
             obs, state = env.transition(key, state, action, params)[:2]
             return state, obs
-        draws = dynamics.draw_replacements(key, params, env.queue_size)
-        return dynamics.transition_and_grids(state, action, draws, params)[0], obs
+        replacements = dynamics.draw_replacements(key, params, env.queue_size)
+        return dynamics.rware_transition(state, action, replacements, params)[0], obs
 
     times = {}
     for variant, label in PROFILE_VARIANTS:
@@ -220,12 +234,14 @@ def profile(name: str, batch: int, repeats: int) -> dict:
                 jax.random.split(key, b), params))(jax.random.key(2))
 
             def run(key, state, obs):
-                def body(carry, t):
-                    k = jax.random.fold_in(key, t)
-                    actions = jax.random.randint(k, (b, n), 0, 5, dtype=jnp.int32)
-                    return jax.vmap(lambda *a: one_step(variant, *a))(jax.random.split(k, b), *carry, actions), None
+                action_key, env_key = jax.random.split(key)
+                actions = draws(action_key, steps, b, n)
+                keys = jax.random.split(env_key, steps * b).reshape(steps, b)
 
-                return jax.lax.scan(body, (state, obs), jnp.arange(steps))[0]
+                def body(carry, inputs):
+                    return jax.vmap(lambda *a: one_step(variant, *a))(inputs[0], *carry, inputs[1]), None
+
+                return jax.lax.scan(body, (state, obs), (keys, actions))[0]
 
             return jax.jit(run), (jax.random.key(1), state, obs)
 
@@ -235,10 +251,11 @@ def profile(name: str, batch: int, repeats: int) -> dict:
         print(f"  profile {label}: {times[variant]:.3f} us per env-step", flush=True)
     parts = {
         "auto-reset (a batched while: runs only on steps where an episode ends)": times["step"] - times["transition"],
-        "observation (cell features of the whole padded grid, then windows)": times["transition"] - times["dynamics"],
+        "observation (lookups of the sensor cells only, then the values as bits)":
+            times["transition"] - times["dynamics"],
         "move graph (resolve_moves)": times["dynamics"] - times["no_conflicts"],
-        "deliveries (a scan over goals)": times["dynamics"] - times["no_deliveries"],
-        "rest of the dynamics (targets, cancel pass, occupancy grids, counters)":
+        "deliveries (goal by goal, written out)": times["dynamics"] - times["no_deliveries"],
+        "rest of the dynamics (targets, cancel pass, cell lookups, shelf moves, draws, counters)":
             times["no_conflicts"] + times["no_deliveries"] - times["dynamics"],
     }
     return {"id": name, "batch": batch, "us_per_env_step": times, "parts_us": parts,
@@ -246,7 +263,9 @@ def profile(name: str, batch: int, repeats: int) -> dict:
 
 
 NOTES = ("Notes. Ours: `jit(lax.scan(vmap(env.step)))`, auto-reset included, compile time apart (in the JSON), "
-         "best of the timed calls. rware: its Python `Warehouse.step`, one environment, reset when done. "
+         "best of the timed calls; the random actions (and our per-environment step keys) are drawn up front inside "
+         "each timed call, for Jumanji alike (drawn inside each step, JAX's CPU loop of threefry was a fifth of our "
+         "step: harness, not environment). rware: its Python `Warehouse.step`, one environment, reset when done. "
          "Jumanji: `python -m venv /tmp/jumanji-venv && /tmp/jumanji-venv/bin/pip install jumanji`, its "
          "`RobotWarehouse` (same layout, agents, sensor range, queue) behind `AutoResetWrapper`, timed as ours; "
          "its rules are not rware's (agents move one after another, a collision ends the episode, rewards are "

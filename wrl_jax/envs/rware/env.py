@@ -28,7 +28,7 @@ from wrl_jax.core.environment import Environment, only_where
 from wrl_jax.core.gymnax_base import spaces
 from wrl_jax.core.random import split_key
 from wrl_jax.core.spaces import MultiDiscrete
-from wrl_jax.envs.rware.dynamics import draw_replacements, draw_reset, rware_reset, transition_and_grids
+from wrl_jax.envs.rware.dynamics import draw_replacements, draw_reset, rware_reset, rware_transition
 from wrl_jax.envs.rware.observation import observation_size, rware_observation
 from wrl_jax.envs.rware.types import NUM_ACTIONS, RwareParams, RwareState
 
@@ -128,9 +128,9 @@ class Rware(Environment[RwareState, RwareParams]):
         message = None
         if self.msg_bits:
             action, message = action[:, 0], action[:, 1:].astype(jnp.float32)
-        state, reward, done, info, layers = transition_and_grids(state, action, jnp.asarray(replacements, jnp.int32),
-                                                                 params, message)
-        obs = rware_observation(state, params, self.sensor_range, self.normalised_coordinates, layers)
+        replacements = jnp.asarray(replacements, jnp.int32)
+        state, reward, done, info = rware_transition(state, action, replacements, params, message)
+        obs = rware_observation(state, params, self.sensor_range, self.normalised_coordinates)
         info = {**info, "final_global_state": obs.reshape(-1)}
         return obs, state, reward, jnp.zeros((), bool), done, info
 

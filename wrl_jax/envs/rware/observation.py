@@ -7,6 +7,9 @@ highway; then the ``(2r+1)^2`` cells around the agent, row-major in the absolute
 ``shelf_requested``. A cell with no agent, or off the map, shows heading "up" (rware writes
 ``[1, 0, 0, 0]`` there) and a zero message. Built from the post-step state and queue.
 
+Only the ``N (2r+1)^2`` cells the agents see are looked up (:func:`~wrl_jax.envs.rware.dynamics.ids_at`),
+not the whole grid: building every cell's features and slicing windows was half of a step.
+
 rware's other observation types (DICT, IMAGE, IMAGE_DICT) are not implemented.
 """
 
@@ -16,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from wrl_jax.envs.rware.dynamics import grids, requested_mask
+from wrl_jax.envs.rware.dynamics import ids_at, materialise, requested_mask
 from wrl_jax.envs.rware.types import RwareParams, RwareState
 
 SELF_SIZE = 8
@@ -33,45 +36,86 @@ def observation_size(sensor_range: int, msg_bits: int) -> int:
     return SELF_SIZE + (2 * sensor_range + 1) ** 2 * cell_size(msg_bits)
 
 
-def cell_features(state: RwareState, params: RwareParams, sensor_range: int, layers=None) -> jax.Array:
-    """``(H + 2r, W + 2r, 7 + M)`` float32: every cell's sensor values, the map padded by ``r`` empty cells.
+def window_cells(state: RwareState, params: RwareParams, sensor_range: int) -> jax.Array:
+    """``(N, (2r+1)^2)`` int32 flat cells ``y W + x`` each agent sees, row-major; -1 off the map (matches nothing)."""
+    height, width = params.grid_size
+    offsets = np.arange(-sensor_range, sensor_range + 1, dtype=np.int32)
+    dy, dx = (a.reshape(-1) for a in np.meshgrid(offsets, offsets, indexing="ij"))
+    x = state.agent_x[:, None] + dx[None, :]
+    y = state.agent_y[:, None] + dy[None, :]
+    inside = (x >= 0) & (x < width) & (y >= 0) & (y < height)
+    return jnp.where(inside, y * width + x, -1)
 
-    ``layers``: the state's :func:`~wrl_jax.envs.rware.dynamics.grids`, if already computed.
+
+def cell_keys(state: RwareState, params: RwareParams, sensor_range: int) -> tuple[jax.Array, jax.Array]:
+    """``(N, (2r+1)^2)`` int32 each, per sensor cell: its agent's ``4 id + heading``, its shelf's ``2 id + requested``.
+
+    Keys rise with the id, so the max over a cell's entities (:func:`ids_at`) is rware's grid (the highest
+    id wins a cell) and carries that entity's heading or flag; 0 where the cell is empty or off the map.
     """
-    agent_ids, shelf_ids = grids(state, params) if layers is None else layers
-    agent_ids, shelf_ids = jnp.pad(agent_ids, sensor_range), jnp.pad(shelf_ids, sensor_range)
-    has_agent = agent_ids > 0
-    index = jnp.maximum(agent_ids - 1, 0)
-    heading = jnp.where(has_agent, state.agent_dir[index], 0)
-    message = jnp.where(has_agent[..., None], state.message[index], 0.0)
-    has_shelf = shelf_ids > 0
-    requested = has_shelf & requested_mask(state.queue, state.shelf_x.shape[0])[jnp.maximum(shelf_ids - 1, 0)]
-    return jnp.concatenate([
-        has_agent[..., None].astype(jnp.float32),
-        jax.nn.one_hot(heading, 4, dtype=jnp.float32),
-        message.astype(jnp.float32),
-        has_shelf[..., None].astype(jnp.float32),
-        requested[..., None].astype(jnp.float32),
-    ], axis=-1)
+    width = params.grid_size[1]
+    cells = window_cells(state, params, sensor_range)
+    count, num_shelves = state.agent_x.shape[0], state.shelf_x.shape[0]
+    agent_key = 4 * jnp.arange(1, count + 1, dtype=jnp.int32) + state.agent_dir
+    shelf_key = (2 * jnp.arange(1, num_shelves + 1, dtype=jnp.int32)
+                 + requested_mask(state.queue, num_shelves).astype(jnp.int32))
+    cell_bound = params.grid_size[0] * width
+    return (ids_at(cells, state.agent_y * width + state.agent_x, agent_key, max(cell_bound, 4 * count + 4)),
+            ids_at(cells, state.shelf_y * width + state.shelf_x, shelf_key, max(cell_bound, 2 * num_shelves + 2)))
+
+
+def _packed(state: RwareState, params: RwareParams, sensor_range: int, x: jax.Array, y: jax.Array) -> jax.Array:
+    """The observation without messages: every 0/1 value a bit of ``ceil(D / 32)`` uint32 words per agent.
+
+    Why: the values written out by concatenating one-hot pieces cost as much as the rest of the step
+    (XLA's CPU loop for a nested concatenate works element by element); here one elementwise pass
+    over the ``(N, D)`` output reads each column's bit from a word chosen by static compares.
+    """
+    agent, shelf = cell_keys(state, params, sensor_range)
+    u = jnp.uint32
+    # A cell's 7 bits: has_agent, heading one-hot (heading 0, "up", where empty), has_shelf, requested.
+    code = ((agent > 0).astype(u) | (u(2) << (agent & 3).astype(u)) | ((shelf > 0).astype(u) << 5)
+            | ((shelf & 1).astype(u) << 6))
+    direction = state.agent_dir
+    heading = jnp.where((direction >= 0) & (direction < 4), u(8) << jnp.clip(direction, 0, 3).astype(u), u(0))
+    highway = params.highway[state.agent_y, state.agent_x]
+    own = ((state.carrying >= 0).astype(u) << 2) | heading | (highway.astype(u) << 7)
+    size = code.shape[1] * 7 + SELF_SIZE
+    words = [own] + [jnp.zeros_like(own)] * ((size - 1) // 32)
+    for cell in range(code.shape[1]):
+        for index in range(len(words)):
+            shift = SELF_SIZE + 7 * cell - 32 * index  # where the cell's bits start in this word
+            if 0 <= shift < 32:
+                words[index] = words[index] | (code[:, cell] << u(shift))
+            elif -7 < shift < 0:
+                words[index] = words[index] | (code[:, cell] >> u(-shift))
+    words = list(materialise(jnp.stack(words, axis=1)).T)  # else rebuilt for each of the D columns
+    column = np.arange(size)
+    word = words[-1][:, None]
+    for index in range(len(words) - 2, -1, -1):
+        word = jnp.where(column < 32 * (index + 1), words[index][:, None], word)
+    bits = ((word >> (column % 32).astype(np.uint32)) & 1).astype(jnp.float32)
+    return jnp.where(column == 0, x[:, None], jnp.where(column == 1, y[:, None], bits))
 
 
 def rware_observation(state: RwareState, params: RwareParams, sensor_range: int,
-                      normalised_coordinates: bool = False, layers=None) -> jax.Array:
-    """``(N, observation_size)`` float32, each agent's FLATTENED observation (``layers``: see :func:`cell_features`)."""
+                      normalised_coordinates: bool = False) -> jax.Array:
+    """``(N, observation_size)`` float32, each agent's FLATTENED observation."""
     height, width = params.grid_size
-    features = cell_features(state, params, sensor_range, layers)
-    side = 2 * sensor_range + 1
-
-    def window(x, y):  # padded coordinates: the window's corner is the agent's own cell
-        return jax.lax.dynamic_slice(features, (y, x, 0), (side, side, features.shape[-1])).reshape(-1)
-
-    sensors = jax.vmap(window)(state.agent_x, state.agent_y)
     x = state.agent_x.astype(jnp.float32)
     y = state.agent_y.astype(jnp.float32)
     if normalised_coordinates:  # rware divides in float64, then stores float32: a table of exactly those values
         x = jnp.asarray((np.arange(width) / (width - 1)).astype(np.float32))[state.agent_x]
         y = jnp.asarray((np.arange(height) / (height - 1)).astype(np.float32))[state.agent_y]
+    if not state.message.shape[-1]:
+        return _packed(state, params, sensor_range, x, y)
+    agent, shelf = cell_keys(state, params, sensor_range)
+    has_agent = agent > 0
+    message = jnp.where(has_agent[..., None], state.message[jnp.maximum((agent >> 2) - 1, 0)], 0.0)
+    sensors = jnp.concatenate([has_agent[..., None].astype(jnp.float32), jax.nn.one_hot(agent & 3, 4),
+                               message.astype(jnp.float32), (shelf > 0)[..., None].astype(jnp.float32),
+                               (shelf & 1)[..., None].astype(jnp.float32)], axis=-1)
     own = jnp.stack([x, y, (state.carrying >= 0).astype(jnp.float32)], axis=1)
     heading = jax.nn.one_hot(state.agent_dir, 4, dtype=jnp.float32)
     highway = params.highway[state.agent_y, state.agent_x].astype(jnp.float32)[:, None]
-    return jnp.concatenate([own, heading, highway, sensors], axis=1)
+    return jnp.concatenate([own, heading, highway, sensors.reshape(sensors.shape[0], -1)], axis=1)
