@@ -160,7 +160,7 @@ def manhattan(point: jax.Array, target: jax.Array) -> jax.Array:
 class GeodesicShaping(ContinuousWarehouse):
     """The contract's warehouse, the shaping term's distance measured around the shelves (see the module).
 
-    Build it with :func:`make_geodesic` (or ``wrl_jax.make(name, shaping="geodesic")``): ``params``
+    Build it with ``make_continuous(layout, shaping="geodesic")`` (or ``wrl_jax.make(name, shaping="geodesic")``): ``params``
     are :class:`GeodesicParams`. Everything but the reward is the contract's, bit for bit.
     """
 
