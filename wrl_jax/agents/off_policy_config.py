@@ -215,7 +215,8 @@ TD3_DEFAULT = TD3Config(
 )
 """Ours for the continuous warehouse, the same loop as SAC's default."""
 
-CONTINUOUS_NAMES = ("Continuous-Warehouse-8x8-v0", "Continuous-Warehouse-12x12-v0", "Continuous-Warehouse-12x12-Dynamic-v0")
+CONTINUOUS_NAMES = (
+    "Continuous-Warehouse-8x8-v0", "Continuous-Warehouse-12x12-v0", "Continuous-Warehouse-12x12-Dynamic-v0")
 """The continuous warehouse's study maps, where every learner trains with :data:`CONTINUOUS_ENV_DEFAULTS`."""
 CONTINUOUS_ENV_DEFAULTS = {"observe_target": True}
 """What a training command gives the continuous warehouse unless its flags say otherwise: the target seen

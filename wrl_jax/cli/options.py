@@ -50,7 +50,7 @@ class EnvOptions:
     view_radius: int | None = None
     """fleet and procedural environments: radius V of each robot's egocentric window"""
     shaping: str | None = None
-    """distance of the shaping term: fleet and procedural environments bfs or manhattan, continuous ones manhattan or geodesic"""
+    """distance of the shaping term: bfs or manhattan (fleet, procedural), manhattan or geodesic (continuous)"""
     pool_size: int | None = None
     """procedural environments: layouts in the pool episodes reset from"""
     pool_refresh: int | None = None
@@ -65,7 +65,7 @@ class EnvOptions:
     visit_levels: int | None = None
     """procedural environments: the visited channel counts visits up to this many (1: visited or not)"""
     observe_target: bool | None = None
-    """continuous environments: the target seen from the robot (forward, left, distance, bearing) after the contract's values"""
+    """continuous environments: the target seen from the robot (offset, distance, bearing) after the contract's values"""
     observe_rays: bool | None = None
     """procedural environments: the free runs from the robot up, down, left and right (a range sensor)"""
 

@@ -79,7 +79,7 @@ def _move_allowed(free: np.ndarray, dy: int, dx: int) -> np.ndarray:
 
 def distance_fields(shelves: np.ndarray, targets: np.ndarray, margin: float,
                     resolution: int = RESOLUTION) -> np.ndarray:
-    """``(K, ny, nx)`` float32: the lattice distance (metres) from every lattice point to each of ``targets`` ``(K, 2)``.
+    """``(K, ny, nx)`` float32: the lattice distance (metres) from every lattice point to each ``targets[k]``.
 
     Bellman-Ford on the 16-connected lattice, all targets at once, in a compiled ``while`` that stops
     when nothing shortens (at most one pass per lattice point). Routes run over the points at least
@@ -160,8 +160,8 @@ def manhattan(point: jax.Array, target: jax.Array) -> jax.Array:
 class GeodesicShaping(ContinuousWarehouse):
     """The contract's warehouse, the shaping term's distance measured around the shelves (see the module).
 
-    Build it with ``make_continuous(layout, shaping="geodesic")`` (or ``wrl_jax.make(name, shaping="geodesic")``): ``params``
-    are :class:`GeodesicParams`. Everything but the reward is the contract's, bit for bit.
+    Build it with ``make_continuous(layout, shaping="geodesic")`` or ``wrl_jax.make(name, shaping="geodesic")``;
+    ``params`` are :class:`GeodesicParams`. Everything but the reward is the contract's, bit for bit.
     """
 
     def transition(self, key: jax.Array, state: ContinuousState, action: Any, params: GeodesicParams):
