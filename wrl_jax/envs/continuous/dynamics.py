@@ -52,6 +52,11 @@ def next_waypoint(cell: jax.Array, came_from: jax.Array, u: jax.Array, shelves: 
     return jnp.where(count > 0, candidates[chosen], came_from)
 
 
+def manhattan(point: jax.Array, target: jax.Array) -> jax.Array:
+    """The contract's shaping distance ``d``: ``|px - tx| + |py - ty|`` in float32."""
+    return jnp.abs(point[0] - target[0]) + jnp.abs(point[1] - target[1])
+
+
 def observe(pos: jax.Array, theta: jax.Array, command: jax.Array, carrying: jax.Array, item: jax.Array,
             ranges: jax.Array, params: ContinuousParams) -> jax.Array:
     """The ``11 + L`` float32 values of the contract's table; ``ranges`` the lidar distances (metres)."""
@@ -146,8 +151,7 @@ def transition_core(state: ContinuousState, action: jax.Array, draws: StepDraws,
     truncated = (time >= params.max_steps) & ~delivered
     # The reward, terms in the contract's order.
     target = jnp.where(state.carrying, params.goal, state.item)
-    before = jnp.abs(state.pos[0] - target[0]) + jnp.abs(state.pos[1] - target[1])
-    after = jnp.abs(pos[0] - target[0]) + jnp.abs(pos[1] - target[1])
+    before, after = manhattan(state.pos, target), manhattan(pos, target)
     reward = jnp.where(delivered, jnp.float32(0.0), params.step_penalty)
     reward = reward + jnp.where(collision, params.collision_penalty, 0.0)
     reward = reward + params.shaping_coef * (before - after)

@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from wrl_jax.envs.continuous.dynamics import manhattan
 from wrl_jax.envs.continuous.env import ContinuousWarehouse
 from wrl_jax.envs.continuous.types import ContinuousParams, ContinuousState
 
@@ -150,11 +151,6 @@ def read_field(field: jax.Array, point: jax.Array, resolution: int = RESOLUTION)
     top = field[y0, x0] * (1 - fx) + field[y0, x0 + 1] * fx
     bottom = field[y0 + 1, x0] * (1 - fx) + field[y0 + 1, x0 + 1] * fx
     return top * (1 - fy) + bottom * fy
-
-
-def manhattan(point: jax.Array, target: jax.Array) -> jax.Array:
-    """The contract's ``d``: ``|px - tx| + |py - ty|`` in float32."""
-    return jnp.abs(point[0] - target[0]) + jnp.abs(point[1] - target[1])
 
 
 class GeodesicShaping(ContinuousWarehouse):
