@@ -236,7 +236,7 @@ def test_the_family_hook_evaluates_pool_layouts_and_heldout_sets(env_params, mon
     # The final report: held-out and out-of-distribution layouts, two seeds (sizes shrunk for the test).
     # The generated out-of-distribution sets are the grid family's (tested there); the study maps stand for them.
     monkeypatch.setattr(procedural_evaluation, "HELDOUT_LAYOUTS", 32)
-    monkeypatch.setattr(procedural_evaluation, "ood_sets", lambda generator, count: [
+    monkeypatch.setattr(procedural_evaluation, "ood_sets", lambda generator, count, *, long_routes: [
         LayoutSet(f"study_{name}", name, stack([study_layout(name, generator.max_shape)]))
         for name in ("8x8", "12x12")])
     context = FinalContext(algo=_Algo, network_params=jnp.array([0.0, 0.6], jnp.float32), env=env, params=params,

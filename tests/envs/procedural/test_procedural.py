@@ -16,6 +16,7 @@ from wrl_jax.envs.warehouse import maps
 from wrl_jax.core.observation import robot_observations
 from wrl_jax.core.registry import make
 from wrl_jax.envs.procedural import generators as gen
+from wrl_jax.envs.procedural.draws import cell_words
 from wrl_jax.envs.procedural.layout import (
     PaddedLayout,
     from_arrays,
@@ -153,7 +154,7 @@ def test_shelf_floors_are_periodic_blocks_and_obstacle_floors_follow_density():
     @jax.jit
     def floors(key):
         headers = jax.random.bits(key, (256, 16), jnp.uint32)
-        words = jax.vmap(lambda h: gen.cell_words(h, CONFIG.max_shape)[0])(headers)
+        words = jax.vmap(lambda h: cell_words(h, CONFIG.max_shape)[0])(headers)
         shelf = jax.vmap(lambda h, w: gen.shelf_floor(h, w, no_gaps))(headers, words)
         obstacle = jax.vmap(lambda h, w: gen.obstacle_floor(h, w, dense))(headers, words)
         on_floor = jax.vmap(lambda h, w: gen.in_bounds_mask(h, w, (16, 16)))(*obstacle[1:])
@@ -803,15 +804,16 @@ def test_final_report_measures_heldout_and_ood_sets(env_and_params, ood, monkeyp
     params = params.replace(max_steps=jnp.int32(60))
     # A "stochastic" stand-in whose draws are its greedy action: the sampled held-out row must equal the greedy one.
     algo = SimpleNamespace(greedy_action=_toward_target, has_stochastic_policy=True,
-                           sample_action=lambda net, obs, key: _toward_target(net, obs))
+                           sample_action=lambda net, obs, key: _toward_target(net, obs), policy_memory=lambda: None)
     context = FinalContext(algo=algo, network_params=jnp.arange(2), env=env, params=params, seeds=[7, 8])
     report = evaluation.final_report(context)
     heldout, ood = report["heldout"], report["ood"]
     sampled = {k: v for k, v in report["heldout_sampled"].items() if k != "description"}
     assert sampled == {k: v for k, v in heldout.items() if k not in ("description", "overlap_with_training")}
     assert heldout["layouts"] == 48 - heldout["overlap_with_training"] and heldout["overlap_with_training"] == 0
-    assert set(ood) == {"dense", "narrow_shelves", "study_8x8", "study_12x12", "movingai"}
-    assert [ood[name]["layouts"] for name in ("dense", "narrow_shelves", "movingai")] == [16, 16, 3]
+    assert set(ood) == {"dense", "narrow_shelves", "serpentine", "spiral", "comb", "study_8x8", "study_12x12",
+                        "movingai"}
+    assert [ood[name]["layouts"] for name in ("dense", "narrow_shelves", "serpentine", "movingai")] == [16, 16, 16, 3]
     assert ood["study_8x8"]["episodes"] == 2 * 10 and ood["study_12x12"]["episodes"] == 2 * 20
     assert ood["study_8x8"]["bfs_optimum"] == 14.0  # the study's mean optimum (wrl_jax.envs.warehouse.layout's BFS)
     assert ood["movingai"]["episodes"] == 2 * 3 * 8
@@ -874,7 +876,8 @@ def test_final_sets_agree_with_the_periodic_evaluation_and_drop_training_layouts
 
 def test_ood_generators_are_out_of_distribution(ood):
     sets = {s.name: s for s in ood}
-    assert list(sets) == ["dense", "narrow_shelves", "study_8x8", "study_12x12", "movingai"]
+    assert list(sets) == ["dense", "narrow_shelves", "serpentine", "spiral", "comb", "study_8x8", "study_12x12",
+                          "movingai"]
     dense = jax.tree.map(np.asarray, sets["dense"].layouts)
     floor = (np.arange(16)[None, :, None] < dense.height[:, None, None]) & (
         np.arange(16)[None, None, :] < dense.width[:, None, None])

@@ -132,11 +132,12 @@ def evaluate_layout_sets(greedy_action: GreedyFn, network_params: Any, env, para
 def generalization_sets(env, params, heldout_layouts: int | None = None,
                         ood_layouts: int | None = None) -> tuple[list[LayoutSet], int]:
     """``(sets, overlap)``: the held-out set (``overlap`` of its layouts were in the pool, dropped), then
-    the out-of-distribution sets that fit the map (generated ones of ``ood_layouts`` layouts each)."""
+    the out-of-distribution sets that fit the map (generated ones of ``ood_layouts`` layouts each; not the
+    grid family's long-route sets)."""
     heldout_layouts = HELDOUT_LAYOUTS if heldout_layouts is None else int(heldout_layouts)
     ood_layouts = OOD_LAYOUTS if ood_layouts is None else int(ood_layouts)
     heldout, overlap = heldout_set(env.generator, env.training_layout_hashes(params), heldout_layouts)
-    return [heldout, *ood_sets(env.generator, ood_layouts)], overlap
+    return [heldout, *ood_sets(env.generator, ood_layouts, long_routes=False)], overlap
 
 
 def final_report(context, heldout_layouts: int | None = None, ood_layouts: int | None = None) -> dict[str, Any]:

@@ -1,6 +1,6 @@
 """Warehouse generators: pure functions ``key -> PaddedLayout`` that ``jit`` and ``vmap``.
 
-Three families, each at the fixed maximum shape of a :class:`GeneratorConfig`
+Three training families, each at the fixed maximum shape of a :class:`GeneratorConfig`
 (default 16x16) with a real floor of random size within it:
 
 - :func:`shelf_blocks`: pick floors. Rectangular shelf blocks in a periodic
@@ -12,6 +12,9 @@ Three families, each at the fixed maximum shape of a :class:`GeneratorConfig`
 - :func:`random_obstacles`: every floor cell is a shelf with a density drawn
   per layout.
 - :func:`mixture`: one of the two, shelf blocks with probability ``shelf_mix``.
+
+Three more families force long routes, for out-of-distribution tests of planning policies
+(:mod:`~wrl_jax.envs.procedural.route_floors`): ``"serpentine"``, ``"spiral"`` and ``"comb"``.
 
 Solvability is guaranteed by construction and checked inside ``jit``: the
 start is drawn on a free cell, a flood fill (``lax.while_loop``) finds what it
@@ -32,9 +35,11 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 
-from wrl_jax.envs.procedural.layout import PaddedLayout, flood_fill, fmix32, in_bounds_mask
+from wrl_jax.envs.procedural.draws import HEADER_WORDS, between, cell_words, floor_size, fraction, threshold
+from wrl_jax.envs.procedural.layout import PaddedLayout, flood_fill, in_bounds_mask
+from wrl_jax.envs.procedural.route_floors import comb_floor, serpentine_floor, spiral_floor
 
-FAMILIES = ("shelves", "obstacles", "mixture")
+FAMILIES = ("shelves", "obstacles", "mixture", "serpentine", "spiral", "comb")
 
 Floor = tuple[jax.Array, jax.Array, jax.Array]
 """``(shelves (H, W) bool, height, width)`` of one drawn floor, before placement."""
@@ -44,15 +49,18 @@ class GeneratorConfig:
     """Static settings of a generator (hashable: a ``jit`` static argument).
 
     Attributes:
-        family: ``"shelves"``, ``"obstacles"`` or ``"mixture"``.
+        family: ``"shelves"``, ``"obstacles"`` or ``"mixture"`` (training), or a long-route family
+            (``"serpentine"``, ``"spiral"``, ``"comb"``: :mod:`~wrl_jax.envs.procedural.route_floors`).
         max_shape: padded shape ``(H, W)`` of every layout.
-        min_shape: smallest real floor; sizes are uniform in ``min_shape..max_shape``.
+        min_shape: smallest real floor; sizes are uniform in ``min_shape..max_shape`` (long-route
+            families: at least 3/4 of ``max_shape`` per axis).
         max_items: item capacity ``I`` of the layout arrays.
         min_items: the number of items is uniform in ``min_items..max_items``.
         density: ``(low, high)`` range of the obstacle density (obstacles family).
         gap_rate: ``(low, high)`` range of the fraction of shelf cells knocked out (shelf family).
         aisle: ``(low, high)`` range of the aisle width between shelf blocks (shelf family); ``(1, 1)``
-            gives the narrowest floors (an out-of-distribution set of the final evaluation).
+            gives the narrowest floors (an out-of-distribution set of the final evaluation). The
+            long-route families draw their corridor widths in ``1..high``.
         shelf_mix: probability of the shelf family in the mixture.
         items_on_pick_faces: place items next to shelves first (where real pick faces are).
         min_reach: least fraction of the free floor the start must reach, else redraw.
@@ -97,52 +105,7 @@ class GeneratorConfig:
             raise ValueError(f"max_attempts must be at least 2 (the last is the repair), got {self.max_attempts}")
 
 
-# ------------------------------------------------------------------ random words
-# One attempt draws a small block of uint32 words with jax.random.bits (threefry):
-# a header of _HEADER_WORDS words (sizes, block dimensions, family, rates, item
-# count, and two seeds). The per-cell words (one for the floor, thresholded, one
-# for the placement scores) are a counter-based hash of the cell index under
-# those seeds (murmur3's finalizer, applied twice): threefry for 2 * H * W words
-# per attempt made the random numbers the largest cost of generation on CPU.
-# The cell words are uniform-looking and differ with the key; they are meant for
-# layout variety, not for statistics or cryptography.
-_HEADER_WORDS = 16
-
-
-def cell_words(header: jax.Array, shape: tuple[int, int]) -> tuple[jax.Array, jax.Array]:
-    """``(floor words, score words)``, each ``shape`` uint32, hashed from the cell index and two seeds."""
-    index = jnp.arange(2 * shape[0] * shape[1], dtype=jnp.uint32)
-    words = fmix32(fmix32(index * jnp.uint32(0x9E3779B9) + header[14]) ^ header[15])
-    return words.reshape(2, *shape)[0], words.reshape(2, *shape)[1]
-
-
-def _below(word: jax.Array, count: jax.Array) -> jax.Array:
-    """An integer uniform in ``0..count-1`` from a uint32 word (``count < 2**16``, bias below 2**-16)."""
-    return (((word >> 16) * jnp.asarray(count, dtype=jnp.uint32)) >> 16).astype(jnp.int32)
-
-
-def _between(word: jax.Array, low: int | jax.Array, high: int | jax.Array) -> jax.Array:
-    """An integer uniform in ``low..high`` (inclusive) from a uint32 word."""
-    return jnp.asarray(low, dtype=jnp.int32) + _below(word, jnp.asarray(high) - jnp.asarray(low) + 1)
-
-
-def _fraction(word: jax.Array, low: float, high: float) -> jax.Array:
-    """A float32 uniform in ``[low, high)`` from a uint32 word (24-bit resolution)."""
-    unit = (word >> 8).astype(jnp.float32) * jnp.float32(2.0**-24)
-    return jnp.float32(low) + unit * jnp.float32(high - low)
-
-
-def _threshold(probability: jax.Array) -> jax.Array:
-    """The uint32 below which a uniform word falls with ``probability`` (< 1)."""
-    return (probability * jnp.float32(2.0**32)).astype(jnp.uint32)
-
-
 # ------------------------------------------------------------------ floors
-def _floor_size(header: jax.Array, config: GeneratorConfig) -> tuple[jax.Array, jax.Array]:
-    return (_between(header[0], config.min_shape[0], config.max_shape[0]),
-            _between(header[1], config.min_shape[1], config.max_shape[1]))
-
-
 def shelf_floor(header: jax.Array, cells: jax.Array, config: GeneratorConfig) -> Floor:
     """A pick floor of periodic shelf blocks with random dimensions and knocked-out gaps.
 
@@ -150,10 +113,10 @@ def shelf_floor(header: jax.Array, cells: jax.Array, config: GeneratorConfig) ->
     them: length ``L`` in 2..6, cross-aisles ``C`` in 1..2; margins of 0..1
     cells on both sides; only whole blocks; horizontal or vertical blocks.
     """
-    height, width = _floor_size(header, config)
-    depth, aisle = _between(header[2], 1, 2), _between(header[3], *config.aisle)
-    length, cross = _between(header[4], 2, 6), _between(header[5], 1, 2)
-    offset_across, offset_along = _between(header[6], 0, 1), _between(header[7], 0, 1)
+    height, width = floor_size(header, config)
+    depth, aisle = between(header[2], 1, 2), between(header[3], *config.aisle)
+    length, cross = between(header[4], 2, 6), between(header[5], 1, 2)
+    offset_across, offset_along = between(header[6], 0, 1), between(header[7], 0, 1)
     vertical = header[8] >> 31 == 1
     rows = jnp.arange(config.max_shape[0], dtype=jnp.int32)[:, None]
     cols = jnp.arange(config.max_shape[1], dtype=jnp.int32)[None, :]
@@ -167,28 +130,29 @@ def shelf_floor(header: jax.Array, cells: jax.Array, config: GeneratorConfig) ->
     in_along = (along >= 0) & (along % (length + cross) < length) & (along - along % (length + cross) + length
                                                                      <= along_room)
     shelves = in_across & in_along
-    gap_rate = _fraction(header[9], *config.gap_rate)
-    shelves = shelves & ~(cells < _threshold(gap_rate))
+    gap_rate = fraction(header[9], *config.gap_rate)
+    shelves = shelves & ~(cells < threshold(gap_rate))
     return shelves & in_bounds_mask(height, width, config.max_shape), height, width
 
 
 def obstacle_floor(header: jax.Array, cells: jax.Array, config: GeneratorConfig) -> Floor:
     """A floor whose cells are shelves independently, with a density drawn per layout."""
-    height, width = _floor_size(header, config)
-    density = _fraction(header[10], *config.density)
-    shelves = cells < _threshold(density)
+    height, width = floor_size(header, config)
+    density = fraction(header[10], *config.density)
+    shelves = cells < threshold(density)
     return shelves & in_bounds_mask(height, width, config.max_shape), height, width
 
 
 def mixture_floor(header: jax.Array, cells: jax.Array, config: GeneratorConfig) -> Floor:
     """A shelf floor with probability ``shelf_mix``, else an obstacle floor (both computed, one kept)."""
-    pick_shelves = header[11] < _threshold(jnp.float32(config.shelf_mix)) if config.shelf_mix < 1 else True
+    pick_shelves = header[11] < threshold(jnp.float32(config.shelf_mix)) if config.shelf_mix < 1 else True
     return jax.tree.map(lambda a, b: jnp.where(pick_shelves, a, b),
                         shelf_floor(header, cells, config), obstacle_floor(header, cells, config))
 
 
 FLOORS: dict[str, Callable[[jax.Array, jax.Array, GeneratorConfig], Floor]] = {
     "shelves": shelf_floor, "obstacles": obstacle_floor, "mixture": mixture_floor,
+    "serpentine": serpentine_floor, "spiral": spiral_floor, "comb": comb_floor,
 }
 
 
@@ -222,8 +186,8 @@ def _best_cells(ranks: jax.Array, count: int, config: GeneratorConfig) -> jax.Ar
     """
     flat = ranks.reshape(-1)
 
-    def take(threshold, _):
-        best = jnp.max(jnp.where(flat < threshold, flat, -1))
+    def take(ceiling, _):
+        best = jnp.max(jnp.where(flat < ceiling, flat, -1))
         return best, best
 
     _, best = jax.lax.scan(take, jnp.int32(2**31 - 1), None, length=count)
@@ -254,7 +218,7 @@ def place(header: jax.Array, scores: jax.Array, floor: Floor, config: GeneratorC
     start = _best_cells(jnp.where(free, rank, -1), 1, config)[0]
     reached = flood_fill(free, start)
     if num_items is None:
-        num_items = _between(header[12], config.min_items, config.max_items)
+        num_items = between(header[12], config.min_items, config.max_items)
     num_reached = jnp.sum(reached, dtype=jnp.int32)
     ok = (num_reached >= num_items + 2) & (num_reached >= config.min_reach * jnp.sum(free, dtype=jnp.int32))
     others = reached.at[start[0], start[1]].set(False)
@@ -279,10 +243,15 @@ def generate(key: jax.Array, config: GeneratorConfig) -> PaddedLayout:
     accepts. (All attempts side by side, with no loop, was slower at a batch
     of 5,000: most layouts need only the first.)
     """
+    return generate_with_attempts(key, config)[0]
+
+
+def generate_with_attempts(key: jax.Array, config: GeneratorConfig) -> tuple[PaddedLayout, jax.Array]:
+    """:func:`generate` and the number of draws it made: ``config.max_attempts`` means the repair was used."""
     draw_floor = FLOORS[config.family]
 
     def attempt(index):
-        header = jax.random.bits(jax.random.fold_in(key, index), (_HEADER_WORDS,), jnp.uint32)
+        header = jax.random.bits(jax.random.fold_in(key, index), (HEADER_WORDS,), jnp.uint32)
         cells, scores = cell_words(header, config.max_shape)
         shelves, height, width = draw_floor(header, cells, config)
         shelves = shelves & (index < config.max_attempts - 1)
@@ -297,8 +266,8 @@ def generate(key: jax.Array, config: GeneratorConfig) -> PaddedLayout:
         return ~ok & (index < config.max_attempts)
 
     first, ok = attempt(jnp.int32(0))
-    _, layout, _ = jax.lax.while_loop(again, body, (jnp.int32(1), first, ok))
-    return layout
+    attempts, layout, _ = jax.lax.while_loop(again, body, (jnp.int32(1), first, ok))
+    return layout, attempts
 
 
 def shelf_blocks(key: jax.Array, config: GeneratorConfig = GeneratorConfig()) -> PaddedLayout:

@@ -100,11 +100,14 @@ def movingai_layouts(max_shape: tuple[int, int], draws: int | None = None, num_i
                   for draw in range(draws)])
 
 
-def ood_sets(generator, ood_layouts: int | None = None) -> list[LayoutSet]:
+def ood_sets(generator, ood_layouts: int | None = None, long_routes: bool = True) -> list[LayoutSet]:
     """The out-of-distribution sets for a policy trained on ``generator``'s layouts (skipping what does not fit).
 
     - ``dense``: obstacle floors of a density above the training range (its top to 10 points over it);
     - ``narrow_shelves``: shelf floors at the maximum shape, one-cell aisles, no knocked-out shelves;
+    - ``serpentine``, ``spiral``, ``comb`` (with ``long_routes``): the long-route families of
+      :mod:`~wrl_jax.envs.procedural.route_floors` at the maximum shape, routes several times longer than
+      the training families' (a test of planning);
     - ``study_8x8``, ``study_12x12``: the study's maps, padded, every item;
     - ``movingai``: :data:`MOVINGAI_WAREHOUSE` with :data:`MOVINGAI_DRAWS` drawn placements.
     """
@@ -122,6 +125,16 @@ def ood_sets(generator, ood_layouts: int | None = None) -> list[LayoutSet]:
                                     "one-cell aisles, no gaps",
                   generate_pool(jax.random.fold_in(key, 1), ood_layouts, narrow, stream="heldout").layouts),
     ]
+    if long_routes:
+        shape = f"{generator.max_shape[0]}x{generator.max_shape[1]}"
+        for index, (family, what) in enumerate((
+                ("serpentine", "parallel walls with one opening each, at alternating ends: one long snake"),
+                ("spiral", "a corridor winding from an outer corner into the centre"),
+                ("comb", "a spine corridor with long dead-end teeth, mostly hairpins")), start=2):
+            config = dataclasses.replace(generator, family=family, min_shape=generator.max_shape)
+            sets.append(LayoutSet(family, f"{family} floors at {shape}: {what}",
+                                  generate_pool(jax.random.fold_in(key, index), ood_layouts, config,
+                                                stream="heldout").layouts))
     height, width = generator.max_shape
     for name, side in (("8x8", 8), ("12x12", 12)):
         if side <= min(height, width):

@@ -29,7 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from wrl_jax.envs.procedural.generators import GeneratorConfig, cell_words, place
+from wrl_jax.envs.procedural.draws import cell_words
+from wrl_jax.envs.procedural.generators import GeneratorConfig, place
 from wrl_jax.envs.procedural.layout import PaddedLayout, from_arrays
 from wrl_jax.envs.warehouse.layout import parse
 
