@@ -9,7 +9,8 @@ import sys
 if __name__ == "__main__":
     from wrl_jax.cli import machine  # imports no JAX
 
-    machine.apply_for_command(sys.argv[1:])  # XLA's flags and distributed JAX, before JAX starts
+    # XLA's flags, host devices and distributed JAX, before JAX starts
+    argv = machine.apply_for_command(sys.argv[1:], choose_devices=True)
     from wrl_jax.cli.train import main
 
-    sys.exit(main("ppo"))
+    sys.exit(main("ppo", argv))

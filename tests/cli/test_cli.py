@@ -169,14 +169,21 @@ def test_the_scripts_set_xla_flags_before_jax_starts(script, argv, expected):
 
 
 def test_an_environment_may_bring_its_own_default_preset(tmp_path):
-    """Without --preset, the procedural warehouse trains with PPO's 'procedural' preset; the study's maps with 'default'."""
+    """Without --preset, the procedural warehouse trains with PPO's 'procedural' preset (the policy that plans,
+    which reads the map); the study's maps with 'default'; 'procedural_mlp' is the MLP without the map."""
     procedural = cli_options.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--out", str(tmp_path / "a")])
     assert procedural.run.preset == "procedural" and procedural.config.obs_encoding == "raw"
-    # ... and its environment default: the previous action in the observation, recorded as an override.
-    assert procedural.env.overrides() == {"observe_last_action": True, "observe_visited": True, "visit_levels": 3}
+    assert (procedural.config.encoder, procedural.config.propagation_rounds) == ("propagation", 0)
+    # ... and its environment defaults: the robot's memory and the map, recorded as overrides.
+    assert procedural.env.overrides() == {"observe_last_action": True, "observe_visited": True, "visit_levels": 3,
+                                          "observe_map": True}
+    mlp = cli_options.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--preset", "procedural_mlp",
+                                    "--out", str(tmp_path / "m")])
+    assert mlp.config.encoder == "mlp" and mlp.env.overrides()["observe_map"] is False
     plain = cli_options.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--observe-last-action", "False",
                               "--observe-visited", "False", "--visit-levels", "1", "--out", str(tmp_path / "e")])
-    assert plain.env.overrides() == {"observe_last_action": False, "observe_visited": False, "visit_levels": 1}
+    assert plain.env.overrides() == {"observe_last_action": False, "observe_visited": False, "visit_levels": 1,
+                                     "observe_map": True}
     study = cli_options.parse("ppo", ["--out", str(tmp_path / "b")])
     assert study.run.preset == "default" and study.config.obs_encoding == "onehot"
     chosen = cli_options.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--preset", "default", "--out", str(tmp_path / "c")])
@@ -205,7 +212,7 @@ def test_continuous_learners_see_the_target_unless_told_otherwise(tmp_path):
 
 
 def test_encoder_flag_builds_the_propagation_policy_and_refuses_an_env_without_a_map(tmp_path):
-    """``--encoder propagation`` reaches PPO's config; without ``--observe-map True`` the build (before any
+    """``--encoder propagation`` reaches PPO's config; with ``--observe-map False`` the build (before any
     compilation) names the missing map and the flag that adds it."""
     argv = ["--env", "Procedural-Warehouse-v0", "--encoder", "propagation", "--propagation-rounds", "32",
             "--pool-size", "16"]
@@ -213,6 +220,6 @@ def test_encoder_flag_builds_the_propagation_policy_and_refuses_an_env_without_a
     assert (command.config.encoder, command.config.propagation_rounds) == ("propagation", 32)
     algo = build(command.spec, command.config, command.env)
     assert algo.map_layout == algo.env.map_observation()
-    command = cli_options.parse("ppo", [*argv, "--out", str(tmp_path / "b")])
+    command = cli_options.parse("ppo", [*argv, "--observe-map", "False", "--out", str(tmp_path / "b")])
     with pytest.raises(ValueError, match="observes none .*--observe-map True"):
         build(command.spec, command.config, command.env)

@@ -36,7 +36,7 @@ MOVINGAI = "type octile\nheight 6\nwidth 9\nmap\n.........\n.@@@.@@@.\n.........
 def procedural_run(tmp_path_factory):
     """A run directory holding the checkpoint of an untrained PPO on Procedural-Warehouse-v0, seeds 3 and 4."""
     spec = get_spec("ppo")
-    config = dataclasses.replace(ppo_config.PROCEDURAL, hidden_sizes=(16,), num_envs=8, num_steps=16, num_minibatches=2,
+    config = dataclasses.replace(ppo_config.PROCEDURAL_MLP, hidden_sizes=(16,), num_envs=8, num_steps=16, num_minibatches=2,
                                  update_epochs=1, total_timesteps=256)
     # The preset's observation (the previous action too): evaluate must rebuild it from env_overrides.
     algo = build(spec, config, EnvOptions(env="Procedural-Warehouse-v0", **ppo_config.PROCEDURAL_ENV_DEFAULTS))
@@ -114,3 +114,22 @@ def test_evaluate_refuses_layouts_for_a_run_of_another_environment(tmp_path, lay
     assert done.returncode == 2
     assert "needs a run of a single-robot layout environment" in done.stderr
     assert "Fleet-12x12-v0 (family 'fleet')" in done.stderr
+
+
+def test_the_procedural_command_splits_the_cpu_unless_told(tmp_path):
+    """``train_ppo.py --env Procedural-Warehouse-v0`` adds ``--devices N`` (N: cores, dividing the seeds) when
+    the user chose nothing; never on other environments or when a flag decides."""
+    from wrl_jax.cli.machine import auto_devices
+
+    argv = ["--env", "Procedural-Warehouse-v0"]
+    assert auto_devices(argv, 2) == 2 and auto_devices(argv, 16) == 4 and auto_devices(argv, 1) == 0
+    assert auto_devices([*argv, "--num-seeds", "3"], 2) == 0  # 3 seeds do not split over 2 devices
+    assert auto_devices([*argv, "--num-seeds=6"], 4) == 3
+    assert auto_devices(["--env=Procedural-Warehouse-v0"], 2) == 2
+    for chosen in (["--devices", "1"], ["--devices=4"], ["--distributed"]):
+        assert auto_devices([*argv, *chosen], 2) == 0
+    assert auto_devices(["--env", "Warehouse-12x12-v0"], 2) == 0 and auto_devices([], 2) == 0
+    # a resumed run keeps the devices it recorded (none recorded, or a missing run: one)
+    (tmp_path / "config.json").write_text('{"devices": 2}')
+    assert auto_devices(["--resume", "--out", str(tmp_path)], 16) == 2
+    assert auto_devices(["--resume", "--out", str(tmp_path / "missing")], 16) == 0

@@ -109,6 +109,11 @@ class Algorithm(abc.ABC, Generic[RunnerT]):
         """An action drawn from the learned policy for ``obs`` (only where :attr:`has_stochastic_policy`)."""
         raise NotImplementedError(f"{self.name} has no stochastic policy to sample")
 
+    def policy_memory(self) -> Any:
+        """A :class:`~wrl_jax.core.evaluation.PolicyMemory` where the policy is cheaper with memory across
+        steps (evaluations then run it on the whole batch), else ``None`` (the default)."""
+        return None
+
     def flops_per_update(self) -> int | None:
         """Floating-point operations one update of one seed costs (network passes), if known.
 
@@ -142,6 +147,8 @@ class AlgoSpec:
             applies unless its flags say otherwise (the fleet trains with a larger
             block penalty than FLEET_SPEC.md's default); recorded in the run's
             ``env_overrides`` like any flag.
+        preset_env_defaults: preset name -> environment overrides that preset needs, applied over
+            ``env_defaults`` (the procedural planning preset reads the map, its MLP sibling does not).
     """
 
     name: str
@@ -154,14 +161,17 @@ class AlgoSpec:
     study: Mapping[str, str] | None = None
     env_presets: Mapping[str, str] = dataclasses.field(default_factory=dict)
     env_defaults: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
+    preset_env_defaults: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
 
     def preset_for(self, env_name: str) -> str:
         """The preset a command uses on ``env_name`` when ``--preset`` is not given."""
         return self.env_presets.get(env_name, self.default_preset)
 
-    def env_defaults_for(self, env_name: str) -> dict[str, Any]:
-        """The environment overrides a command applies on ``env_name`` unless its flags change them."""
-        return dict(self.env_defaults.get(env_name, {}))
+    def env_defaults_for(self, env_name: str, preset: str | None = None) -> dict[str, Any]:
+        """The environment overrides a command applies on ``env_name`` with ``preset`` (default: the
+        environment's own preset) unless its flags change them."""
+        preset = self.preset_for(env_name) if preset is None else preset
+        return {**self.env_defaults.get(env_name, {}), **self.preset_env_defaults.get(preset, {})}
 
 
 @struct.dataclass

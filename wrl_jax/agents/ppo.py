@@ -56,6 +56,7 @@ from wrl_jax.agents.off_policy_config import CONTINUOUS_ENV_DEFAULTS, CONTINUOUS
 from wrl_jax.agents.ppo_config import (
     FLEET_ENV_DEFAULTS,
     PRESETS,
+    PRESET_ENV_DEFAULTS,
     PROCEDURAL_ENV_DEFAULTS,
     STUDY_TABLE3,
     PPOConfig,
@@ -91,6 +92,8 @@ class Transition(struct.PyTreeNode):
     global_state: Any = None  # (num_envs, G) with a centralized critic, else None
     final_global_state: Any = None
     events: Any = None  # {metric: scalar}: the step's counts of the info flags in ``env.event_metrics``
+    inputs: Any = None  # with encoder="propagation": the networks' inputs of obs and of final_obs
+    final_inputs: Any = None
 
 
 _ADAM_EPS = 1e-5  # as in Stable-Baselines3 and CleanRL
@@ -166,11 +169,15 @@ class PPO(ActorCritic, Algorithm[PPORunner]):
         gumbel = draw(k_act, (cfg.num_steps, cfg.num_envs, *agents, self.env.num_actions))
         global_states = jax.vmap(self.env.global_state, in_axes=(0, None)) if self.centralized else None
 
-        # 1. rollout
+        # 1. rollout (with encoder="propagation", the values are propagated once per leg of an episode:
+        # a cache of each environment's values travels with the scan, and the networks' inputs are kept)
+        planning = self.map_layout is not None
+
         def env_step(carry, step_inputs):
-            env_state, obs, stats = carry
+            env_state, obs, stats, plan = carry
             step_keys, step_gumbel = step_inputs
-            logits = self.forward(networks["actor"], obs)
+            inputs = plan[0] if planning else None
+            logits = self.forward(networks["actor"], obs, inputs=inputs)
             if self.continuous:  # the sample is learned from; the box receives it clipped
                 action = logits + jnp.exp(networks["actor"]["log_std"]) * step_gumbel
                 log_prob = self.gaussian_log_prob(networks["actor"], logits, action)
@@ -193,12 +200,17 @@ class PPO(ActorCritic, Algorithm[PPORunner]):
             if self.centralized:
                 extras["global_state"] = global_states(env_state, runner.env_params)
                 extras["final_global_state"] = info["final_global_state"]
+            if planning:  # the state reached first (its leg is usually the step's own), then the next one
+                extras["inputs"], cache = inputs, plan[1]
+                extras["final_inputs"], cache = self.rollout_inputs(networks["actor"], info["final_obs"], cache)
+                plan = self.rollout_inputs(networks["actor"], next_obs, cache)
             stats, sums = track_episodes(stats, team_reward, terminated, truncated)
             transition = Transition(obs, action, log_prob, reward, terminated, truncated, info["final_obs"], **extras)
-            return (next_state, next_obs, stats), (transition, sums)
+            return (next_state, next_obs, stats, plan), (transition, sums)
 
-        (env_state, obs, stats), (traj, sums) = jax.lax.scan(
-            env_step, (runner.env_state, runner.obs, runner.episode_stats), (env_keys, gumbel)
+        plan = self.rollout_inputs(networks["actor"], runner.obs) if planning else None
+        (env_state, obs, stats, _), (traj, sums) = jax.lax.scan(
+            env_step, (runner.env_state, runner.obs, runner.episode_stats, plan), (env_keys, gumbel)
         )
 
         # 2. values of the observations and of the states the transitions reached
@@ -206,7 +218,10 @@ class PPO(ActorCritic, Algorithm[PPORunner]):
         both_global = (
             jnp.concatenate([traj.global_state, traj.final_global_state], axis=0) if self.centralized else None
         )
-        both_inputs = self.network_inputs(networks["actor"], both)
+        if planning:
+            both_inputs = jnp.concatenate([traj.inputs, traj.final_inputs], axis=0)
+        else:
+            both_inputs = self.network_inputs(networks["actor"], both)
         both_values = self.forward(networks["critic"], both, both_global, inputs=both_inputs)[..., 0]
         values, next_values = both_values[: cfg.num_steps], both_values[cfg.num_steps :]
 
@@ -236,14 +251,21 @@ class PPO(ActorCritic, Algorithm[PPORunner]):
         }
         if self.centralized:
             batch["global_state"] = traj.global_state
+        if planning:  # minibatches of whole environments, so that a leg's rows are neighbours (propagated once)
+            batch = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), batch)
         batch = jax.tree.map(lambda x: x.reshape((cfg.steps_per_update,) + x.shape[2:]), batch)
         progress = update_index.astype(jnp.float32) / cfg.num_updates  # 0 at the first update
         learning_rate = linear_decay(hyper.learning_rate, progress) if cfg.anneal_lr else hyper.learning_rate
         ent_coef = linear_decay(hyper.ent_coef, progress) if cfg.anneal_ent else hyper.ent_coef
         hyper = hyper.replace(ent_coef=ent_coef)
 
-        # A random permutation of the batch per epoch: argsort of random bits.
-        orders = jnp.argsort(jax.random.bits(k_order, (cfg.update_epochs, cfg.steps_per_update)), axis=-1)
+        # A random permutation of the batch per epoch: argsort of random bits (of the environments with
+        # encoder="propagation", each keeping its steps in order).
+        if planning:
+            envs = jnp.argsort(jax.random.bits(k_order, (cfg.update_epochs, cfg.num_envs)), axis=-1)
+            orders = (envs[..., None] * cfg.num_steps + jnp.arange(cfg.num_steps)).reshape(cfg.update_epochs, -1)
+        else:
+            orders = jnp.argsort(jax.random.bits(k_order, (cfg.update_epochs, cfg.steps_per_update)), axis=-1)
 
         def epoch(carry, order):
             params, opt_state = carry
@@ -281,7 +303,7 @@ class PPO(ActorCritic, Algorithm[PPORunner]):
 
     def _loss(self, params: jax.Array, mb: dict[str, jax.Array], hyper: PPOHyper):
         networks = self.unflatten(params)
-        inputs = self.network_inputs(networks["actor"], mb["obs"])  # computed once for both networks
+        inputs = self.network_inputs(networks["actor"], mb["obs"], by_run=True)  # once for both networks
         logits = self.forward(networks["actor"], mb["obs"], inputs=inputs)
         if self.continuous:
             log_prob = self.gaussian_log_prob(networks["actor"], logits, mb["action"])
@@ -384,6 +406,7 @@ SPEC = AlgoSpec(
     env_defaults={"Fleet-12x12-v0": FLEET_ENV_DEFAULTS, "Fleet-32x32-v0": FLEET_ENV_DEFAULTS,
                   "Procedural-Warehouse-v0": PROCEDURAL_ENV_DEFAULTS,
                   **{name: CONTINUOUS_ENV_DEFAULTS for name in CONTINUOUS_NAMES}},
+    preset_env_defaults=PRESET_ENV_DEFAULTS,
 )
 
 

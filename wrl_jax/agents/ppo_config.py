@@ -59,7 +59,9 @@ class PPOConfig:
             propagated from the target over the map with learned costs (the actor's
             parameters, :mod:`wrl_jax.agents.propagation`), and both MLPs see the rest
             of the observation and the values around the robot instead of the map.
-        propagation_rounds: rounds of that propagation (the longest path it sees, in moves).
+        propagation_rounds: ``0`` (the default): propagate until the values stop changing, so they
+            reach every cell whatever the route's length; ``k > 0``: ``k`` rounds, paths of at most
+            ``k`` moves (cells farther away read as unreachable).
 
     Traced (vmappable, :class:`PPOHyper`):
         learning_rate, gamma, gae_lambda, clip_eps, ent_coef, vf_coef, max_grad_norm, reward_scale.
@@ -79,7 +81,7 @@ class PPOConfig:
     bootstrap_truncated: bool = True
     critic: str = "local"
     encoder: str = "mlp"
-    propagation_rounds: int = 48
+    propagation_rounds: int = 0
     learning_rate: float = 0.01
     gamma: float = 0.95
     gae_lambda: float = 0.6
@@ -110,10 +112,12 @@ class PPOConfig:
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first problem; called before anything is compiled."""
-        positive = ("num_envs", "num_steps", "num_minibatches", "update_epochs", "total_timesteps",
-                    "propagation_rounds")
+        positive = ("num_envs", "num_steps", "num_minibatches", "update_epochs", "total_timesteps")
         check_positive_ints("PPO", self, positive)
         check_hidden_sizes("PPO", self.hidden_sizes)
+        if not isinstance(self.propagation_rounds, int) or self.propagation_rounds < 0:
+            raise ValueError(f"PPO propagation_rounds must be an int >= 0 (0: until the values converge), "
+                             f"got {self.propagation_rounds!r}")
         if self.obs_encoding not in OBS_ENCODINGS:
             raise ValueError(f"PPO obs_encoding must be one of {OBS_ENCODINGS}, got {self.obs_encoding!r}")
         if self.encoder not in ENCODERS:
@@ -186,7 +190,7 @@ PAPER = PPOConfig(
 DEFAULT = PPOConfig()
 """Ours, for Warehouse-12x12-v0 on a 2-core CPU; chosen on seeds 2000-2031, validated on 1000-1031 (docs/ppo.md)."""
 
-PROCEDURAL = dataclasses.replace(
+PROCEDURAL_MLP = dataclasses.replace(
     DEFAULT,
     obs_encoding="raw",  # the egocentric window and positions: the one-hot encoding is the study maps' coordinates
     hidden_sizes=(128, 128),
@@ -196,12 +200,21 @@ PROCEDURAL = dataclasses.replace(
     ent_coef=0.0,  # no entropy bonus: a sharper policy trains closer to the greedy one that is evaluated
     total_timesteps=2_500_000,  # 1,220 updates
 )
-"""The default for ``Procedural-Warehouse-v0`` (docs/procedural.md has the runs that chose it).
+"""``--preset procedural_mlp``: the MLP on the robot's window and memory, no map (docs/procedural.md).
 
-With the observation of :data:`PROCEDURAL_ENV_DEFAULTS`, seeds 0-3: 99.3 % of 1,024 held-out layouts'
-episodes delivered greedily (99.2-99.4 % per seed), 8.2 % mean excess over the BFS optimum;
-with a yes/no trail 97.7 % and 6.1 %; with the previous action alone 95.2 % and 6.8 %; with the plain
-robot observation 78 % and 1.7 % (the greedy policy oscillated between two cells)."""
+It searches where the planning preset plans: 99.3 % of held-out episodes delivered with 8.2 % excess
+over the BFS optimum (seeds 0-3), and on floors unlike its training ones much less."""
+
+PROCEDURAL = dataclasses.replace(PROCEDURAL_MLP, encoder="propagation", total_timesteps=500_000)
+"""The default for ``Procedural-Warehouse-v0``: the policy that plans (docs/procedural.md).
+
+The MLP of :data:`PROCEDURAL_MLP` reads the window, the memory and, instead of the map, the values
+propagated over the whole map with learned costs until they converge (:mod:`wrl_jax.agents.propagation`);
+the environment observes its map (:data:`PRESET_ENV_DEFAULTS`)."""
+
+PRESET_ENV_DEFAULTS = {"procedural": {"observe_map": True}, "procedural_mlp": {"observe_map": False}}
+"""What a preset needs of the environment, over the environment's own defaults (the planning
+preset reads the map; the MLP would take it as 768 more inputs, and did worse with them)."""
 
 PROCEDURAL_ENV_DEFAULTS = {"observe_last_action": True, "observe_visited": True, "visit_levels": 3}
 """What ``python train_ppo.py --env Procedural-Warehouse-v0`` changes in the environment unless told otherwise.
@@ -262,7 +275,8 @@ CONTINUOUS = dataclasses.replace(
 )
 """PPO with a Gaussian policy for the continuous warehouse (first setting; docs/continuous.md)."""
 
-PRESETS = {"default": DEFAULT, "paper": PAPER, "procedural": PROCEDURAL, "fleet": FLEET, "continuous": CONTINUOUS}
+PRESETS = {"default": DEFAULT, "paper": PAPER, "procedural": PROCEDURAL, "procedural_mlp": PROCEDURAL_MLP,
+           "fleet": FLEET, "continuous": CONTINUOUS}
 
 STUDY_TABLE3 = {
     "Task Completion Rate": "Stable across 20 locations",

@@ -1,4 +1,5 @@
-"""PPO's actor and critic: two MLPs kept as one flat parameter vector, their inputs, their FLOPs.
+"""PPO's actor and critic: two MLPs kept as one flat parameter vector, their inputs, their FLOPs, and the
+memory the planning policy keeps across the steps of an evaluation.
 
 :class:`ActorCritic` is a mixin of :class:`~wrl_jax.agents.ppo.PPO` (rejax's shape: the update in
 the algorithm, the networks beside it). It reads the algorithm's ``config`` and ``env``; the
@@ -21,6 +22,7 @@ from wrl_jax.agents.initializers import init_mlp_params
 from wrl_jax.agents.networks import ACTIVATIONS, mlp_forward_flops
 from wrl_jax.agents.ppo_config import PPOConfig
 from wrl_jax.core.environment import Environment
+from wrl_jax.core.evaluation import PolicyMemory
 
 
 class ActorCritic:
@@ -62,14 +64,52 @@ class ActorCritic:
             actor["propagation"] = propagation.init_propagation()
         return {"actor": actor, "critic": critic}
 
-    def network_inputs(self, actor: dict[str, Any], obs: jax.Array) -> jax.Array:
+    def network_inputs(self, actor: dict[str, Any], obs: jax.Array, by_run: bool = False) -> jax.Array:
         """What the MLPs read: ``obs`` itself, or with ``encoder="propagation"`` the observation
         with its map replaced by the values around the robot, propagated with the actor's
         learned costs (:func:`wrl_jax.agents.propagation.map_features`). The critic reads
-        the same: one propagation per observation, and the value loss teaches the costs too."""
+        the same: one propagation per observation, and the value loss teaches the costs too.
+        ``by_run``: a ``(N, obs)`` minibatch whose consecutive rows often share a leg (one
+        propagation per run of them, the same values: :func:`~wrl_jax.agents.propagation.map_features_by_run`)."""
         if self.map_layout is None:
             return obs
-        return propagation.map_features(actor["propagation"], obs, self.map_layout, self.config.propagation_rounds)
+        rounds = self.config.propagation_rounds
+        if by_run and rounds == 0 and obs.ndim == 2:
+            return propagation.map_features_by_run(actor["propagation"], obs, self.map_layout)
+        return propagation.map_features(actor["propagation"], obs, self.map_layout, rounds)
+
+    def rollout_inputs(self, actor: dict[str, Any], obs: jax.Array, cache: Any = None) -> tuple[jax.Array, Any]:
+        """``(inputs, cache)``: :meth:`network_inputs` of a batch of environments' observations, propagating
+        only those whose leg (map and target) changed since ``cache`` (``None``: all of them)."""
+        if self.config.propagation_rounds:  # a fixed number of rounds: no cache (the old programs)
+            return self.network_inputs(actor, obs), cache
+        if cache is None:
+            cache = propagation.init_leg_cache(obs, self.map_layout)
+        return propagation.map_features_cached(actor["propagation"], obs, self.map_layout, cache)
+
+    def policy_memory(self) -> PolicyMemory | None:
+        """With ``encoder="propagation"`` (converged): each episode's values, propagated once per leg."""
+        if self.map_layout is None or self.config.propagation_rounds:
+            return None
+
+        def init(network_params, obs):
+            return propagation.init_leg_cache(obs, self.map_layout)
+
+        def logits(network_params, memory, obs):
+            inputs, memory = propagation.map_features_cached(network_params["propagation"], obs, self.map_layout,
+                                                             memory)
+            return self.forward(network_params, obs, inputs=inputs), memory
+
+        def greedy(network_params, memory, obs):
+            out, memory = logits(network_params, memory, obs)
+            return jnp.argmax(out, axis=-1).astype(jnp.int32), memory
+
+        def sample(network_params, memory, obs, keys):
+            out, memory = logits(network_params, memory, obs)
+            draw = jax.vmap(lambda key, row: jax.random.categorical(key, row, axis=-1).astype(jnp.int32))
+            return draw(keys, out), memory
+
+        return PolicyMemory(init, greedy, sample)
 
     def forward(
         self,
@@ -139,7 +179,8 @@ class ActorCritic:
         if self.map_layout is not None:  # the MLPs see the features, not the map; the actor's propagation
             _, height, width = self.map_layout  # is counted with the actor, the critic shares it
             obs = self.num_features
-            plan = propagation.propagation_forward_flops(height, width, cfg.propagation_rounds)
+            # Converged propagation runs as many rounds as the longest route: H + W is the estimate counted.
+            plan = propagation.propagation_forward_flops(height, width, cfg.propagation_rounds or height + width)
         else:
             plan = 0
         actor = mlp_forward_flops(obs, hidden, actions) + plan

@@ -8,16 +8,16 @@ at every cell too. This is the idea of value iteration networks (Tamar et al., 2
 and of value propagation networks (Nardelli et al., 2019), written here in the min-plus
 form of a shortest path with learned costs:
 
-- a **cost map**: ``c = softplus(s (w * blocked + b))``, with ``w`` a 3x3 kernel over the
-  map's blocked channel (shelves and off-grid, and one cell of off-grid around the
-  padded map), ``b`` a bias and ``s`` = :data:`COST_PARAMETER_SCALE`: what it costs to leave
-  each cell. Learned. At initialization ``w = 0`` and ``c = 1`` everywhere: the network
-  knows nothing of shelves until training makes them dear;
-- ``rounds`` rounds of **propagation** from the target: ``u = 0`` on the target cell,
-  ``-BIG`` elsewhere, then ``u <- max(u, max over the 4 neighbours of u - c)``. After
-  ``k`` rounds ``u(s)`` is minus the cheapest cost of a path of at most ``k`` moves
-  from ``s`` to the target (``-BIG`` when there is none): a learned distance field,
-  computed inside the network from the observed map;
+- a **cost map**: ``c = softplus(s (w * blocked + b))`` on free cells, with ``w`` a 3x3 kernel over
+  the map's blocked channel (shelves and off-grid, and one cell of off-grid around the padded map),
+  ``b`` a bias and ``s`` = :data:`COST_PARAMETER_SCALE`: what it costs to leave each cell. Learned;
+  at initialization ``c = 1`` everywhere. Blocked cells are walls (cost :data:`BIG`: no path crosses
+  them), the environment's rule built in: a learned finite shelf cost only grows as dear as the
+  training floors' detours need, and on floors with longer detours the field then ran through walls;
+- **propagation** from the target: ``u = 0`` on the target cell, ``-BIG`` elsewhere, then
+  ``u <- max(u, max over the 4 neighbours of u - c)`` until nothing changes (or ``rounds`` times):
+  ``u(s)`` is minus the cheapest cost of a path from ``s`` to the target, however long (``-BIG`` when
+  there is none): a learned distance field, computed inside the network from the observed map;
 - **features at the robot**: for each action, the value of the cell it leads to minus
   the best of the four (``0`` for the best move, clipped at ``-CLIP``; ``-BIG`` off the
   padded map), and the robot's own value (clipped, scaled). They join the rest of the
@@ -25,13 +25,14 @@ form of a shortest path with learned costs:
   MLP, and the actor adds them to its logits with a learned weight (``prior``): a
   policy that can follow the learned field from its first update.
 
-The observation still has no distance field (the issue's rule for the generalization
-claim): only the map, the robot's and the target's cells. The distance is the
-network's own computation, with learned costs, from the same parameters on every
-floor. The actor owns the propagation; the critic reads the same features (one
-propagation per observation; the value loss teaches the costs too). Gradients reach
-the costs along every cell's path of best moves (:func:`propagate`'s custom backward
-pass, 7-14x cheaper than autodiff through the rounds).
+The observation has no distance field: only the map, the robot's and the target's cells.
+The distance is the network's own computation, with learned costs, from the same
+parameters on every floor. The actor owns the propagation; the critic reads the same
+features (the value loss teaches the costs too). Gradients reach the costs along every
+cell's path of best moves (:func:`propagate`'s custom backward pass, 7-14x cheaper than
+autodiff through the rounds). The values depend only on the map and the target, fixed for
+a leg of an episode, so callers propagate once per leg: :func:`map_features_by_run` (a
+minibatch in time order) and :func:`map_features_cached` (a rollout or an evaluation).
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ import jax.numpy as jnp
 from wrl_jax.core.grid import MOVES
 
 BIG = 1.0e4
-"""Minus the value of a cell no path of ``rounds`` moves joins to the target."""
+"""Minus the value of a cell no path joins to the target, and the cost of a blocked cell."""
 
 CLIP = 16.0
 """The action features' floor: a move more than this much dearer than the best reads as ``-CLIP``."""
@@ -58,8 +59,8 @@ NUM_FEATURES = len(MOVES) + 1
 
 COST_PARAMETER_SCALE = 5.0
 """The cost map's logit is this times its kernel and bias: the ten cost parameters learn this many times
-faster under Adam (whose steps have about the learning rate's size whatever the gradient's) than the MLPs.
-At 1, run 27's shelves cost only about 3 moves after 0.5 M steps (docs/procedural.md)."""
+faster under Adam (whose steps have about the learning rate's size whatever the gradient's) than the MLPs
+(chosen when shelves' costs were learned too: at 1 they had grown too slowly, docs/procedural.md)."""
 
 _UNIT_COST_BIAS = math.log(math.e - 1.0) / COST_PARAMETER_SCALE  # softplus = 1: every cell costs one move at first
 
@@ -82,12 +83,13 @@ def shifted(x: jax.Array, d_row: int, d_col: int, fill: float) -> jax.Array:
 
 
 def cost_map(params: dict[str, jax.Array], blocked: jax.Array) -> jax.Array:
-    """``(..., H, W)`` float32 > 0: the learned cost of leaving each cell (off the map counts as blocked)."""
+    """``(..., H, W)`` float32 > 0: the learned cost of leaving each free cell; :data:`BIG` on blocked cells
+    (shelves and off the map), which no path crosses."""
     logit = params["bias"]
     for i in range(3):
         for j in range(3):
             logit = logit + params["kernel"][i, j] * shifted(blocked, i - 1, j - 1, 1.0)
-    return jax.nn.softplus(COST_PARAMETER_SCALE * logit)
+    return jnp.where(blocked > 0.5, BIG, jax.nn.softplus(COST_PARAMETER_SCALE * logit))
 
 
 def neighbour(x: jax.Array, d_row: int, d_col: int) -> jax.Array:
@@ -112,10 +114,36 @@ def _bordered(x: jax.Array, fill: float) -> jax.Array:
     return jnp.pad(x, [(0, 0)] * (x.ndim - 2) + [(1, 1), (1, 1)], constant_values=fill)
 
 
-@functools.partial(jax.custom_vjp, nondiff_argnums=(2,))
-def propagate(cost: jax.Array, target: jax.Array, rounds: int) -> jax.Array:
-    """``(..., H, W)``: minus the cheapest cost of at most ``rounds`` moves to the target (``-BIG``: none).
+def _repeat(step, x: jax.Array, rounds: int) -> jax.Array:
+    """``step`` applied ``rounds`` times, or (``rounds == 0``) until ``x`` stops changing.
 
+    Both loops here stop changing exactly: a round's output is a deterministic function of
+    its input, so once a round leaves ``x`` as it was every later round would too. With
+    positive costs a shortest path visits each cell once, so the values settle within
+    the cells' number of rounds, the loop's bound.
+    """
+    if rounds:
+        return jax.lax.fori_loop(0, rounds, lambda _, value: step(value), x)
+    limit = x.shape[-2] * x.shape[-1]
+
+    def again(carry):
+        _, changed, count = carry
+        return changed & (count < limit)
+
+    def body(carry):
+        value, _, count = carry
+        new = step(value)
+        return new, jnp.any(new != value), count + 1
+
+    return jax.lax.while_loop(again, body, (x, jnp.array(True), jnp.int32(0)))[0]
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(2,))
+def propagate(cost: jax.Array, target: jax.Array, rounds: int = 0) -> jax.Array:
+    """``(..., H, W)``: minus the cheapest cost of a path to the target (``-BIG``: none).
+
+    ``rounds == 0``: until the values converge (every cell that has a path gets its
+    value, however long the path); ``rounds > 0``: paths of at most ``rounds`` moves.
     Differentiable in ``cost`` (not in ``target``) by :func:`_propagate_backward`.
     """
     values, _ = _propagate_forward(cost, target, rounds)
@@ -127,21 +155,21 @@ def _propagate_forward(cost: jax.Array, target: jax.Array, rounds: int) -> tuple
     cost = _bordered(cost, BIG)
     values = _bordered(jnp.where(target > 0.5, 0.0, -BIG), -BIG)
 
-    def one_round(_, values):
+    def one_round(values):
         best = neighbour(values, *MOVES[0])
         for d_row, d_col in MOVES[1:]:
             best = jnp.maximum(best, neighbour(values, int(d_row), int(d_col)))
         return jnp.maximum(values, best - cost)
 
-    return jax.lax.fori_loop(0, rounds, one_round, values), cost
+    return _repeat(one_round, values, rounds), cost
 
 
 def _propagate_fwd(cost, target, rounds):
-    values, bordered_cost = _propagate_forward(cost, target, rounds)
-    return values[..., 1:-1, 1:-1], (values, bordered_cost, target)
+    values, _ = _propagate_forward(cost, target, rounds)
+    return values[..., 1:-1, 1:-1], (values, target)
 
 
-def _propagate_backward(rounds, residuals, cotangent):
+def _cost_cotangent(values: jax.Array, target: jax.Array, cotangent: jax.Array, rounds: int) -> jax.Array:
     """The gradient of the values in the costs, by following every cell's best move.
 
     A reached cell's value is its best neighbour's minus its own cost, so it is minus the
@@ -149,30 +177,91 @@ def _propagate_backward(rounds, residuals, cotangent):
     d cost(x)`` is ``-1`` for each cell ``x`` on that path other than the target (``s``
     included), else ``0``. So ``cost``'s cotangent at ``x`` is minus the sum of
     ``cotangent(s)`` over the cells ``s`` whose path passes through ``x``: accumulated by
-    ``rounds`` rounds of pushing each cell's sum one move along its best move (paths have at
-    most ``rounds`` moves). Autodiff through the forward loop instead (a scan storing every
-    round) measured 7-14x slower (``bench/propagation_speed.py``). Ties take the first best
-    move in ``MOVES`` order (a subgradient).
+    pushing each cell's sum one move along its best move, round after round, until the
+    sums stop changing (or for ``rounds`` rounds when the forward pass had that many).
+    Autodiff through the forward loop instead (a scan storing every round) measured
+    7-14x slower (``bench/propagation_speed.py``). Ties take the first best move in
+    ``MOVES`` order (a subgradient). ``values`` bordered; the result is not.
     """
-    values, cost, target = residuals  # values and cost bordered
     candidates = jnp.stack([neighbour(values, int(r), int(c)) for r, c in MOVES])  # (4, ..., H + 2, W + 2)
     best_move = jnp.argmax(candidates, axis=0)
     on_a_path = (values > -BIG / 2) & (_bordered(target, 0.0) <= 0.5)  # reached, and not the target itself
     moving = [(best_move == a) & on_a_path for a in range(len(MOVES))]
     cotangent = _bordered(cotangent, 0.0)
 
-    def one_round(_, through):
+    def one_round(through):
         total = cotangent
         for a, (d_row, d_col) in enumerate(MOVES):  # cell s moving by d hands its sum to s + d
             total = total + neighbour(jnp.where(moving[a], through, 0.0), -int(d_row), -int(d_col))
         return total
 
-    through = jax.lax.fori_loop(0, rounds, one_round, cotangent)
-    cost_cotangent = -jnp.where(on_a_path, through, 0.0)[..., 1:-1, 1:-1]
-    return cost_cotangent, jnp.zeros_like(target)
+    through = _repeat(one_round, cotangent, rounds)
+    return -jnp.where(on_a_path, through, 0.0)[..., 1:-1, 1:-1]
+
+
+def _propagate_backward(rounds, residuals, cotangent):
+    values, target = residuals
+    return _cost_cotangent(values, target, cotangent, rounds), jnp.zeros_like(target)
 
 
 propagate.defvjp(_propagate_fwd, _propagate_backward)
+
+
+def _chunks(body, count: jax.Array, chunk: int, carry):
+    """``body(start, carry)`` for ``start = 0, chunk, 2 chunk, ...`` while ``start < count``."""
+    def again(state):
+        return state[0] < count
+
+    def step(state):
+        start, carry = state
+        return start + chunk, body(start, carry)
+
+    return jax.lax.while_loop(again, step, (jnp.int32(0), carry))[1]
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(3,))
+def propagate_first(cost: jax.Array, target: jax.Array, count: jax.Array, chunk: int) -> jax.Array:
+    """:func:`propagate` (until converged) of the first ``count`` maps of ``(N, H, W)``, ``chunk`` maps at a time.
+
+    The rows from ``count`` on are left at ``-BIG`` (and get no gradient) unless they share a
+    chunk with the last counted rows. ``N`` must be a multiple of ``chunk``. Differentiable in
+    ``cost``: the backward pass runs chunk by chunk too. For batches where many rows share a
+    map and a target (one leg of an episode), the caller propagates each distinct one once.
+    """
+    return _first_forward(cost, target, count, chunk)[..., 1:-1, 1:-1]
+
+
+def _first_forward(cost, target, count, chunk):
+    number, height, width = cost.shape
+    if number % chunk:
+        raise ValueError(f"propagate_first: {number} maps are not a multiple of the chunk {chunk}")
+
+    def body(start, values):
+        rows, _ = _propagate_forward(jax.lax.dynamic_slice_in_dim(cost, start, chunk),
+                                     jax.lax.dynamic_slice_in_dim(target, start, chunk), 0)
+        return jax.lax.dynamic_update_slice_in_dim(values, rows, start, 0)
+
+    return _chunks(body, count, chunk, jnp.full((number, height + 2, width + 2), -BIG, cost.dtype))
+
+
+def _first_fwd(cost, target, count, chunk):
+    values = _first_forward(cost, target, count, chunk)
+    return values[..., 1:-1, 1:-1], (values, target, count)
+
+
+def _first_bwd(chunk, residuals, cotangent):
+    values, target, count = residuals
+
+    def body(start, grads):
+        rows = _cost_cotangent(jax.lax.dynamic_slice_in_dim(values, start, chunk),
+                               jax.lax.dynamic_slice_in_dim(target, start, chunk),
+                               jax.lax.dynamic_slice_in_dim(cotangent, start, chunk), 0)
+        return jax.lax.dynamic_update_slice_in_dim(grads, rows, start, 0)
+
+    return _chunks(body, count, chunk, jnp.zeros_like(cotangent)), jnp.zeros_like(target), None
+
+
+propagate_first.defvjp(_first_fwd, _first_bwd)
 
 
 def robot_features(values: jax.Array, robot: jax.Array) -> jax.Array:
@@ -187,9 +276,8 @@ def robot_features(values: jax.Array, robot: jax.Array) -> jax.Array:
     return jnp.concatenate([relative, own[..., None]], axis=-1)
 
 
-def map_features(params: dict[str, jax.Array], obs: jax.Array, layout: tuple[int, int, int], rounds: int):
-    """``(..., D - 3 H W + NUM_FEATURES)``: the MLPs' input, the observation without its map, then
-    :func:`robot_features` of the values propagated over it with ``params``' costs.
+def split_map(obs: jax.Array, layout: tuple[int, int, int]) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    """``(rest, blocked, robot, target)``: the observation without its map, and the map's three channels.
 
     ``layout = (offset, H, W)``: the map's place in the observation, 3 channels of ``H x W``
     (blocked, the robot, the target), channel-major (``env.map_observation()``).
@@ -197,9 +285,70 @@ def map_features(params: dict[str, jax.Array], obs: jax.Array, layout: tuple[int
     offset, height, width = layout
     end = offset + 3 * height * width
     grid = obs[..., offset:end].reshape(*obs.shape[:-1], 3, height, width)
-    blocked, robot, target = grid[..., 0, :, :], grid[..., 1, :, :], grid[..., 2, :, :]
+    rest = jnp.concatenate([obs[..., :offset], obs[..., end:]], axis=-1)
+    return rest, grid[..., 0, :, :], grid[..., 1, :, :], grid[..., 2, :, :]
+
+
+def leg_key(obs: jax.Array, layout: tuple[int, int, int]) -> jax.Array:
+    """``(..., 2 H W)``: what the values depend on, the blocked and target channels. Equal keys, equal
+    values: within one leg of an episode (a map and a target) the propagation need not run again."""
+    offset, height, width = layout
+    cells = height * width
+    return jnp.concatenate([obs[..., offset : offset + cells], obs[..., offset + 2 * cells : offset + 3 * cells]], -1)
+
+
+def map_features(params: dict[str, jax.Array], obs: jax.Array, layout: tuple[int, int, int], rounds: int = 0):
+    """``(..., D - 3 H W + NUM_FEATURES)``: the MLPs' input, the observation without its map, then
+    :func:`robot_features` of the values propagated over it with ``params``' costs."""
+    rest, blocked, robot, target = split_map(obs, layout)
     values = propagate(cost_map(params, blocked), target, rounds)
-    return jnp.concatenate([obs[..., :offset], obs[..., end:], robot_features(values, robot)], axis=-1)
+    return jnp.concatenate([rest, robot_features(values, robot)], axis=-1)
+
+
+def map_features_by_run(params: dict[str, jax.Array], obs: jax.Array, layout: tuple[int, int, int],
+                        chunk: int = 16) -> jax.Array:
+    """:func:`map_features` (converged) of ``(N, D)`` observations, one propagation per run of
+    consecutive rows with the same :func:`leg_key`: a minibatch ordered by environment and time holds
+    a few legs, not ``N`` maps. Equal to :func:`map_features` row by row, gradient included."""
+    number = obs.shape[0]
+    rest, blocked, robot, target = split_map(obs, layout)
+    key = leg_key(obs, layout)
+    starts = jnp.concatenate([jnp.ones((1,), bool), jnp.any(key[1:] != key[:-1], axis=-1)])
+    run = jnp.cumsum(starts) - 1  # each row's run
+    padded = -(-number // chunk) * chunk
+    first = jnp.nonzero(starts, size=padded, fill_value=0)[0]  # each run's first row
+    values = propagate_first(cost_map(params, blocked[first]), target[first], run[-1] + 1, chunk)
+    return jnp.concatenate([rest, robot_features(values[run], robot)], axis=-1)
+
+
+def init_leg_cache(obs: jax.Array, layout: tuple[int, int, int]) -> tuple[jax.Array, jax.Array]:
+    """An empty cache for :func:`map_features_cached`: no row's key matches (the blocked channel is 0/1)."""
+    _, height, width = layout
+    key = jnp.full(leg_key(obs, layout).shape, -1.0, obs.dtype)
+    return key, jnp.full((*obs.shape[:-1], height, width), -BIG, jnp.float32)
+
+
+def map_features_cached(params: dict[str, jax.Array], obs: jax.Array, layout: tuple[int, int, int],
+                        cache: tuple[jax.Array, jax.Array], chunk: int = 8):
+    """``(features, cache)``: :func:`map_features` (converged) of ``(E, D)`` observations, propagating
+    only the rows whose leg changed since the cache was made (``chunk`` at a time). For rollouts and
+    evaluation, where a row is one environment over time: a leg lasts many steps. Not differentiable."""
+    number = obs.shape[0]
+    rest, blocked, robot, target = split_map(obs, layout)
+    key = leg_key(obs, layout)
+    cached_key, values = cache
+    stale = jnp.any(key != cached_key, axis=-1)
+    padded = -(-number // chunk) * chunk
+    rows = jnp.nonzero(stale, size=padded, fill_value=number)[0]  # ``number``: no row (dropped)
+
+    def body(start, values):
+        index = jax.lax.dynamic_slice_in_dim(rows, start, chunk)
+        safe = jnp.minimum(index, number - 1)
+        fresh = propagate(cost_map(params, blocked[safe]), target[safe])
+        return values.at[index].set(fresh, mode="drop")
+
+    values = _chunks(body, jnp.sum(stale, dtype=jnp.int32), chunk, values)
+    return jnp.concatenate([rest, robot_features(values, robot)], axis=-1), (key, values)
 
 
 def action_features(inputs: jax.Array) -> jax.Array:

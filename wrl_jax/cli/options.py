@@ -157,9 +157,9 @@ def parse(algo: str, argv: list[str] | None = None) -> Command:
     pre.add_argument("--resume", action="store_true")
     known, _ = pre.parse_known_args(argv)
 
-    env_defaults = EnvOptions(env=known.env, **spec.env_defaults_for(known.env))
     if known.preset is None:
         known.preset = spec.preset_for(known.env)
+    env_defaults = EnvOptions(env=known.env, **spec.env_defaults_for(known.env, known.preset))
     run_defaults = RunOptions(preset=known.preset, num_seeds=spec.default_num_seeds)
     if known.resume:
         if known.out is None:

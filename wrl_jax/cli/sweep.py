@@ -244,7 +244,7 @@ def main(argv: list[str] | None = None) -> int:
             algo_name=spec.name,
             config=config,
             env_name=env_name,
-            env_overrides=_env_overrides(spec.env_defaults_for(env_name), env_sets, grid),
+            env_overrides=_env_overrides(spec.env_defaults_for(env_name, preset), env_sets, grid),
             grid=grid,
             seeds=list(range(args.seed, args.seed + args.num_seeds)),
         )

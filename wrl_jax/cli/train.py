@@ -66,7 +66,8 @@ def train(command: Command) -> dict[str, Any]:
         "preset": run.preset,
         "config": config_to_dict(command.config),
     }
-    checkpoint.atomic_write_text(out / "config.json", json.dumps({**metadata, "seeds": run.seeds()}, indent=2))
+    checkpoint.atomic_write_text(out / "config.json", json.dumps(
+        {**metadata, "seeds": run.seeds(), "devices": run.devices, "env_shards": run.env_shards}, indent=2))
     t0 = time.perf_counter()
     runners = trainer.init()
     jax.block_until_ready(runners)

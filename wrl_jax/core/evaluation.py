@@ -22,6 +22,24 @@ from wrl_jax.core import registry
 GreedyFn = Callable[[Any, jax.Array], jax.Array]
 """``greedy_action(network_params, obs) -> action`` for one observation."""
 
+
+
+@dataclasses.dataclass(frozen=True)
+class PolicyMemory:
+    """A policy that keeps something between the steps of a batch of episodes (batch-level functions).
+
+    PPO's propagation encoder keeps each episode's propagated values until its leg (map and target)
+    changes, so an evaluation propagates once per leg instead of once per step. ``init(network_params,
+    obs)`` gives the memory of a batch ``(B, obs_size)``; ``greedy(network_params, memory, obs)`` and
+    ``sample(network_params, memory, obs, keys)`` (one key per row) give ``(actions (B,), memory)``,
+    the same actions as :meth:`~wrl_jax.agents.base.Algorithm.greedy_action` and ``sample_action`` row by row.
+    """
+
+    init: Callable[[Any, jax.Array], Any]
+    greedy: Callable[[Any, Any, jax.Array], tuple[jax.Array, Any]]
+    sample: Callable[[Any, Any, jax.Array, jax.Array], tuple[jax.Array, Any]] | None = None
+
+
 METRIC_KINDS = ("percent", "ratio", "number", "solved")
 """How a :class:`SweepMetric` is shown: ``percent`` a rate in [0, 1] (shown in %, plotted on
 0-100 %), ``ratio`` a ratio shown in % but unbounded (e.g. throughput over PIBT's), ``number``

@@ -110,7 +110,7 @@ def test_training_layout_hashes_list_every_layout_training_saw(small, refreshed)
 
 def test_ppo_and_dqn_train_on_the_renewed_pool(small, refreshed):
     env, params = small
-    config = dataclasses.replace(ppo_config.PROCEDURAL, num_envs=4, num_steps=8, num_minibatches=2, update_epochs=1,
+    config = dataclasses.replace(ppo_config.PROCEDURAL_MLP, num_envs=4, num_steps=8, num_minibatches=2, update_epochs=1,
                                  hidden_sizes=(16,), total_timesteps=3 * 4 * 8)
     loop = training.LoopConfig(chunk_updates=3, eval_every=0, progress=False)
     result = training.run(training.Trainer(PPO(config, env, params), [0, 1], loop))
@@ -159,6 +159,6 @@ def test_bad_refresh_settings_fail_clearly(small, tmp_path):
     command = parse("ppo", ["--env", "Procedural-Warehouse-v0", "--pool-size", "64", "--pool-refresh", "16",
                             "--view-radius", "1", "--out", str(tmp_path / "c")])
     assert command.env.overrides() == {"pool_size": 64, "pool_refresh": 16, "view_radius": 1,
-                                       **ppo_config.PROCEDURAL_ENV_DEFAULTS}  # the preset's environment defaults
+                                       **ppo_config.PROCEDURAL_ENV_DEFAULTS, "observe_map": True}  # the preset's
     algo = build(command.spec, command.config, command.env)
     assert (algo.env.pool_size, algo.env.pool_refresh, algo.env.view_radius) == (64, 16, 1)

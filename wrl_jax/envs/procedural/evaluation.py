@@ -18,7 +18,7 @@ Two evaluations use it:
 - **Final**, once on the host after training (:func:`final_report`, also run by
   ``python -m wrl_jax.evaluate``): the held-out and out-of-distribution sets of
   :mod:`~wrl_jax.envs.procedural.layout_sets`, padded to one item capacity and run
-  as ONE batch of episodes (:func:`evaluate_sets`: one compiled program, every seed
+  as one compiled program (:func:`evaluate_sets`: a loop of episodes per set, every seed
   at once); results are split per set and seed. The statistics and tables are
   :mod:`~wrl_jax.envs.procedural.reports`.
 """
@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from wrl_jax.core.evaluation import FamilyEvaluation, FinalContext, SweepColumns, SweepMetric, TrainRate
+from wrl_jax.core.evaluation import FamilyEvaluation, FinalContext, PolicyMemory, SweepColumns, SweepMetric, TrainRate
 from wrl_jax.envs.procedural.layout_sets import EVAL_SEED, LayoutSet, heldout_set, ood_sets, pad_items
 from wrl_jax.envs.procedural.pool import LayoutPool, generate_pool, pool_of
 from wrl_jax.envs.procedural.reports import episode_stats, format_details, format_report
@@ -58,17 +58,23 @@ class EpisodeEval:
 
 def run_episodes(greedy_action: GreedyFn, network_params: Any, env, params, slots: jax.Array,
                  items: jax.Array, sample_action: SampleFn | None = None,
-                 key: jax.Array | None = None) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+                 key: jax.Array | None = None, memory: PolicyMemory | None = None,
+                 episode_offset: int = 0) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
     """Greedy episodes ``(slot, item)`` of ``params``' pool: ``(delivered, steps, optimum, collisions)`` (jittable).
 
     One batched ``lax.while_loop`` over all episodes, stopping when every one has
     delivered or reached ``params.max_steps``; ``env.transition`` (no auto-reset).
     With ``sample_action`` and ``key``, the policy's actions are drawn instead:
-    episode ``e`` draws step ``t``'s action from ``fold_in(fold_in(key, e), t)``.
+    episode ``e`` draws step ``t``'s action from ``fold_in(fold_in(key, e), t)`` (``e`` counted
+    from ``episode_offset``). With ``memory`` (the algorithm's :meth:`policy_memory`) the policy runs on the whole
+    batch and keeps its memory across steps: the same actions, computed more cheaply.
     """
     sampled = sample_action is not None
     if sampled and key is None:
         raise ValueError("sampled episodes need a key")
+    if memory is not None:
+        return _run_batch(memory, network_params, env, params, slots, items, key if sampled else None,
+                          episode_offset)
 
     def episode(slot, item, episode_index):
         obs, state = env.reset_to(slot, item, params)
@@ -91,7 +97,42 @@ def run_episodes(greedy_action: GreedyFn, network_params: Any, env, params, slot
         delivered = state.carrying & jnp.all(state.pos == state.goal)
         return delivered, state.time, state.optimal, collisions
 
-    return jax.vmap(episode)(slots, items, jnp.arange(slots.shape[0], dtype=jnp.int32))
+    return jax.vmap(episode)(slots, items, episode_offset + jnp.arange(slots.shape[0], dtype=jnp.int32))
+
+
+def _run_batch(memory: PolicyMemory, network_params: Any, env, params, slots: jax.Array, items: jax.Array,
+               key: jax.Array | None, episode_offset: int) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    """:func:`run_episodes` written over the batch (what ``vmap`` makes of it), with the policy's memory."""
+    obs, state = jax.vmap(env.reset_to, in_axes=(0, 0, None))(slots, items, params)
+    episode_keys = None if key is None else jax.vmap(jax.random.fold_in, in_axes=(None, 0))(
+        key, episode_offset + jnp.arange(slots.shape[0], dtype=jnp.int32))
+    transition = jax.vmap(env.transition, in_axes=(None, 0, 0, None))
+
+    def running(state, done):
+        return ~done & (state.time < params.max_steps)
+
+    def one(carry):
+        obs, state, done, collisions, kept = carry
+        active = running(state, done)
+        if episode_keys is None:
+            action, kept = memory.greedy(network_params, kept, obs)
+        else:
+            step_keys = jax.vmap(jax.random.fold_in)(episode_keys, state.time)
+            action, kept = memory.sample(network_params, kept, obs, step_keys)
+        new_obs, new_state, _, terminated, truncated, info = transition(None, state, action, params)
+
+        def keep(new, old):  # finished episodes stay as they ended
+            return jnp.where(active.reshape(active.shape + (1,) * (new.ndim - 1)), new, old)
+
+        obs, state = jax.tree.map(keep, (new_obs, new_state), (obs, state))
+        done = done | (active & (terminated | truncated))
+        return obs, state, done, collisions + (active & info["collision"]).astype(jnp.int32), kept
+
+    done = jnp.zeros(slots.shape, bool)
+    carry = (obs, state, done, jnp.zeros(slots.shape, jnp.int32), memory.init(network_params, obs))
+    _, state, _, collisions, _ = jax.lax.while_loop(lambda c: jnp.any(running(c[1], c[2])), one, carry)
+    delivered = state.carrying & jnp.all(state.pos == state.goal, axis=-1)
+    return delivered, state.time, state.optimal, collisions
 
 
 def evaluate_pool(greedy_action: GreedyFn, network_params: Any, env, params, pool: LayoutPool) -> EpisodeEval:
@@ -148,15 +189,16 @@ def summarize(result: EpisodeEval, seeds: Sequence[int] | None = None) -> dict[s
 
 def evaluate_sets(greedy_action: GreedyFn, network_params: Any, env, params, sets: Sequence[LayoutSet],
                   seeds: Sequence[int], overall: str | None = None, sample_action: SampleFn | None = None,
-                  key: jax.Array | None = None) -> dict[str, Any]:
+                  key: jax.Array | None = None, memory: PolicyMemory | None = None) -> dict[str, Any]:
     """Every real (layout, item) episode of every set, for every seed (leading axis of ``network_params``).
 
     The sets are padded to one item capacity and concatenated into one pool, and
-    only real episodes are run: one compiled program for everything. Returns
+    only real episodes are run: one compiled program for everything, a batched loop per set. Returns
     ``{set name: {description, layouts, **episode_stats, per_seed: [...]}}``, plus
     the statistics of all sets' episodes together under ``overall`` if given.
     ``sample_action`` and ``key``: the sampled policy instead of the greedy one
-    (:func:`run_episodes`; every seed's policy meets the same draws).
+    (:func:`run_episodes`; every seed's policy meets the same draws); ``memory``: the
+    algorithm's :meth:`policy_memory`, the same episodes computed more cheaply.
     """
     if not sets:
         raise ValueError("evaluate_sets needs at least one set of layouts")
@@ -171,12 +213,20 @@ def evaluate_sets(greedy_action: GreedyFn, network_params: Any, env, params, set
     num_items = np.asarray(batch.num_items)
     slots, items = np.nonzero(np.arange(capacity)[None, :] < num_items[:, None])
     eval_params = env.with_pool(params, pool)
-    program = jax.jit(jax.vmap(lambda net, params, slot, item: run_episodes(
-        greedy_action, net, env, params, slot, item, sample_action, key), in_axes=(0, None, None, None)))
-    delivered, steps, optimal, collisions = jax.tree.map(np.asarray, program(
-        network_params, eval_params, jnp.asarray(slots, jnp.int32), jnp.asarray(items, jnp.int32)))
     set_of_layout = np.repeat(np.arange(len(sets)), [layout_set.size for layout_set in sets])[slots]
-    outcome = (delivered, steps, optimal, collisions)
+    bounds = np.searchsorted(set_of_layout, np.arange(len(sets) + 1))  # each set's episodes, in order
+
+    def run_sets(net, params, slot, item):
+        # One loop per set, one after the other: a loop lasts as long as its longest episode, and the
+        # long-route sets would otherwise keep every other set's finished episodes stepping.
+        parts = [run_episodes(greedy_action, net, env, params, slot[lo:hi], item[lo:hi], sample_action,
+                              key, memory, episode_offset=int(lo))
+                 for lo, hi in zip(bounds[:-1], bounds[1:]) if hi > lo]
+        return jax.tree.map(lambda *x: jnp.concatenate(x), *parts)
+
+    program = jax.jit(jax.vmap(run_sets, in_axes=(0, None, None, None)))
+    outcome = jax.tree.map(np.asarray, program(
+        network_params, eval_params, jnp.asarray(slots, jnp.int32), jnp.asarray(items, jnp.int32)))
 
     def entry(mine: np.ndarray, description: str, layouts: int) -> dict[str, Any]:
         stats = episode_stats(*(x[:, mine].reshape(-1) for x in outcome))
@@ -196,7 +246,7 @@ def final_report(context: FinalContext) -> dict[str, Any]:
     """The generalization measurement after training: ``{"heldout": ..., "ood": {set: ...}, ...}`` (host, once).
 
     Every seed's greedy policy on the held-out set (:func:`heldout_set`) and on
-    :func:`ood_sets`, in one batch (:func:`evaluate_sets`); for a stochastic policy (PPO)
+    :func:`ood_sets`, in one program (:func:`evaluate_sets`); for a stochastic policy (PPO)
     also its sampled policy on the held-out set (``heldout_sampled``, draws from
     :data:`EVAL_SEED`); ``final_report_seconds`` is its cost (generation, compilation and
     the episodes).
@@ -206,13 +256,15 @@ def final_report(context: FinalContext) -> dict[str, Any]:
     seen = env.training_layout_hashes(params, context.updates_done)
     heldout, overlap = heldout_set(env.generator, seen)
     sets = [heldout, *ood_sets(env.generator)]
-    report = evaluate_sets(context.algo.greedy_action, context.network_params, env, params, sets, context.seeds)
+    memory = context.algo.policy_memory()
+    report = evaluate_sets(context.algo.greedy_action, context.network_params, env, params, sets, context.seeds,
+                           memory=memory)
     result = {"heldout": {**report.pop("heldout"), "overlap_with_training": overlap},
               "training_layouts": int(seen.size), "ood": report}
     if context.algo.has_stochastic_policy:
         sampled = evaluate_sets(context.algo.greedy_action, context.network_params, env, params, [heldout],
                                 context.seeds, sample_action=context.algo.sample_action,
-                                key=jax.random.fold_in(jax.random.key(EVAL_SEED), 5))
+                                key=jax.random.fold_in(jax.random.key(EVAL_SEED), 5), memory=memory)
         result["heldout_sampled"] = sampled["heldout"]
     return {**result, "final_report_seconds": time.perf_counter() - tic}
 
