@@ -13,15 +13,24 @@ layout variety, not for statistics or cryptography.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import jax
 import jax.numpy as jnp
 
 from wrl_jax.envs.procedural.layout import fmix32
 
-if TYPE_CHECKING:
-    from wrl_jax.envs.procedural.generators import GeneratorConfig
+Floor = tuple[jax.Array, jax.Array, jax.Array]
+"""``(shelves (H, W) bool, height, width)`` of one drawn floor, before placement."""
+
+
+class FloorSettings(Protocol):
+    """What a floor function reads of its generator's settings (a ``GeneratorConfig`` has them all)."""
+
+    min_shape: tuple[int, int]
+    max_shape: tuple[int, int]
+    aisle: tuple[int, int]
+
 
 HEADER_WORDS = 16
 
@@ -54,7 +63,7 @@ def threshold(probability: jax.Array) -> jax.Array:
     return (probability * jnp.float32(2.0**32)).astype(jnp.uint32)
 
 
-def floor_size(header: jax.Array, config: GeneratorConfig,
+def floor_size(header: jax.Array, config: FloorSettings,
                min_shape: tuple[int, int] | None = None) -> tuple[jax.Array, jax.Array]:
     """``(height, width)`` of a real floor, uniform per axis in ``min_shape`` (``config.min_shape``) ``..max_shape``."""
     (low_h, low_w), (high_h, high_w) = min_shape or config.min_shape, config.max_shape

@@ -35,14 +35,12 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 
-from wrl_jax.envs.procedural.draws import HEADER_WORDS, between, cell_words, floor_size, fraction, threshold
+from wrl_jax.envs.procedural.draws import HEADER_WORDS, Floor, between, cell_words, floor_size, fraction, threshold
 from wrl_jax.envs.procedural.layout import PaddedLayout, flood_fill, in_bounds_mask
 from wrl_jax.envs.procedural.route_floors import comb_floor, serpentine_floor, spiral_floor
 
 FAMILIES = ("shelves", "obstacles", "mixture", "serpentine", "spiral", "comb")
 
-Floor = tuple[jax.Array, jax.Array, jax.Array]
-"""``(shelves (H, W) bool, height, width)`` of one drawn floor, before placement."""
 
 @dataclasses.dataclass(frozen=True)
 class GeneratorConfig:

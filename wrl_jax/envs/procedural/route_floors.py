@@ -24,25 +24,20 @@ are shared with every family.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import jax
 import jax.numpy as jnp
 
-from wrl_jax.envs.procedural.draws import between, floor_size, threshold
+from wrl_jax.envs.procedural.draws import Floor, FloorSettings, between, floor_size, threshold
 from wrl_jax.envs.procedural.layout import in_bounds_mask
 
-if TYPE_CHECKING:
-    from wrl_jax.envs.procedural.generators import Floor, GeneratorConfig
 
-
-def long_floor_size(header: jax.Array, config: GeneratorConfig) -> tuple[jax.Array, jax.Array]:
+def long_floor_size(header: jax.Array, config: FloorSettings) -> tuple[jax.Array, jax.Array]:
     """``(height, width)``, each uniform in ``max(min_shape, ceil(3/4 max_shape))..max_shape``."""
     low = tuple(min(high, max(low, -(-3 * high // 4))) for low, high in zip(config.min_shape, config.max_shape))
     return floor_size(header, config, low)
 
 
-def _grid(config: GeneratorConfig) -> tuple[jax.Array, jax.Array]:
+def _grid(config: FloorSettings) -> tuple[jax.Array, jax.Array]:
     rows = jnp.arange(config.max_shape[0], dtype=jnp.int32)[:, None]
     cols = jnp.arange(config.max_shape[1], dtype=jnp.int32)[None, :]
     return rows, cols
@@ -52,7 +47,7 @@ def _bit(word: jax.Array, bit: int) -> jax.Array:
     return (word >> bit) & 1 == 1
 
 
-def serpentine_floor(header: jax.Array, cells: jax.Array, config: GeneratorConfig) -> Floor:
+def serpentine_floor(header: jax.Array, cells: jax.Array, config: FloorSettings) -> Floor:
     """Parallel one-cell walls (rows or columns), each with a single one-cell opening at alternating ends.
 
     Corridor ``k`` (before wall ``k``) is ``1..config.aisle[1]`` wide, drawn per corridor; walls follow
@@ -75,7 +70,7 @@ def serpentine_floor(header: jax.Array, cells: jax.Array, config: GeneratorConfi
     return shelves & in_bounds_mask(height, width, config.max_shape), height, width
 
 
-def spiral_floor(header: jax.Array, cells: jax.Array, config: GeneratorConfig) -> Floor:
+def spiral_floor(header: jax.Array, cells: jax.Array, config: FloorSettings) -> Floor:
     """A rectangular spiral corridor, ``w`` (``1..min(2, config.aisle[1])``) wide, walls one cell thick.
 
     Concentric rings by distance ``d`` to the floor's edge: ``d % (w + 1) < w`` corridor, else wall. Each
@@ -105,7 +100,7 @@ def spiral_floor(header: jax.Array, cells: jax.Array, config: GeneratorConfig) -
     return shelves & in_bounds_mask(height, width, config.max_shape), height, width
 
 
-def comb_floor(header: jax.Array, cells: jax.Array, config: GeneratorConfig) -> Floor:
+def comb_floor(header: jax.Array, cells: jax.Array, config: FloorSettings) -> Floor:
     """A spine corridor along the floor with dead-end teeth between one-cell walls on one or both sides.
 
     The spine (``1..config.aisle[1]`` wide) lies on an edge of the floor (teeth on one side, as deep as
