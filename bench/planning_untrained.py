@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
     env, params = make("Procedural-Warehouse-v0", **ppo_config.PROCEDURAL_ENV_DEFAULTS,
-                       **ppo_config.PRESET_ENV_DEFAULTS["procedural"])
+                       **ppo_config.PRESET_ENV_DEFAULTS["procedural"]["Procedural-Warehouse-v0"])
     algo = ppo.PPO(ppo_config.PROCEDURAL, env, params)
     networks = jax.vmap(lambda key: algo.network_params(algo.init(key)))(seed_keys(args.seeds))
     heldout, _ = layout_sets.heldout_set(env.generator, params.pool)

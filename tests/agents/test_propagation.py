@@ -133,6 +133,10 @@ def test_converged_values_reach_routes_of_any_length():
     converged = np.asarray(propagation.propagate(cost, jnp.asarray(target)[None]))[0]
     np.testing.assert_allclose(-converged[~blocked], distance[~blocked], atol=1e-3)
     short = np.asarray(propagation.propagate(cost, jnp.asarray(target)[None], 48))[0]
+    # the network's own costs at initialization: 1 on floor cells, walls on shelves (or, walls=False, 1 there too)
+    init, grid = propagation.init_propagation(), jnp.asarray(blocked, jnp.float32)
+    np.testing.assert_allclose(propagation.cost_map(init, grid), np.where(blocked, propagation.BIG, 1.0), rtol=1e-6)
+    np.testing.assert_allclose(propagation.cost_map(init, grid, walls=False), 1.0, rtol=1e-6)
     far = ~blocked & (distance > 48)
     assert far.sum() > 40 and (short[far] < -distance[far] - 10).all()  # through a wall (cost 60)
     # the gradient of the converged values: autodiff of a plain loop run long enough to converge too

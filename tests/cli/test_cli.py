@@ -188,6 +188,8 @@ def test_an_environment_may_bring_its_own_default_preset(tmp_path):
     assert study.run.preset == "default" and study.config.obs_encoding == "onehot"
     chosen = cli_options.parse("ppo", ["--env", "Procedural-Warehouse-v0", "--preset", "default", "--out", str(tmp_path / "c")])
     assert chosen.run.preset == "default"
+    elsewhere = cli_options.parse("ppo", ["--preset", "procedural_mlp", "--out", str(tmp_path / "f")])  # the study map
+    assert "observe_map" not in elsewhere.env.overrides()  # the preset's map setting is the procedural env's only
     with pytest.raises(ValueError, match="unknown environment"):
         cli_options.parse("ppo", ["--env", "Nowhere-v0", "--out", str(tmp_path / "d")])
 

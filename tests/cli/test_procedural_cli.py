@@ -118,18 +118,23 @@ def test_evaluate_refuses_layouts_for_a_run_of_another_environment(tmp_path, lay
 
 def test_the_procedural_command_splits_the_cpu_unless_told(tmp_path):
     """``train_ppo.py --env Procedural-Warehouse-v0`` adds ``--devices N`` (N: cores, dividing the seeds) when
-    the user chose nothing; never on other environments or when a flag decides."""
+    the user chose nothing; never on other environments or when a flag or the environment decides."""
     from wrl_jax.cli.machine import auto_devices
 
     argv = ["--env", "Procedural-Warehouse-v0"]
-    assert auto_devices(argv, 2) == 2 and auto_devices(argv, 16) == 4 and auto_devices(argv, 1) == 0
-    assert auto_devices([*argv, "--num-seeds", "3"], 2) == 0  # 3 seeds do not split over 2 devices
-    assert auto_devices([*argv, "--num-seeds=6"], 4) == 3
-    assert auto_devices(["--env=Procedural-Warehouse-v0"], 2) == 2
-    for chosen in (["--devices", "1"], ["--devices=4"], ["--distributed"]):
-        assert auto_devices([*argv, *chosen], 2) == 0
-    assert auto_devices(["--env", "Warehouse-12x12-v0"], 2) == 0 and auto_devices([], 2) == 0
-    # a resumed run keeps the devices it recorded (none recorded, or a missing run: one)
-    (tmp_path / "config.json").write_text('{"devices": 2}')
-    assert auto_devices(["--resume", "--out", str(tmp_path)], 16) == 2
-    assert auto_devices(["--resume", "--out", str(tmp_path / "missing")], 16) == 0
+    quiet = {}  # no WRL_DISTRIBUTED, no XLA_FLAGS
+    assert auto_devices(argv, 2, quiet) == ["--devices", "2"] and auto_devices(argv, 16, quiet) == ["--devices", "4"]
+    assert auto_devices(argv, 1, quiet) == []
+    assert auto_devices([*argv, "--num-seeds", "3"], 2, quiet) == []  # 3 seeds do not split over 2 devices
+    assert auto_devices([*argv, "--num_seeds", "3"], 2, quiet) == []  # tyro's other spelling
+    assert auto_devices([*argv, "--num-seeds=6"], 4, quiet) == ["--devices", "3"]
+    assert auto_devices(["--env=Procedural-Warehouse-v0"], 2, quiet) == ["--devices", "2"]
+    for chosen in (["--devices", "1"], ["--devices=4"], ["--distributed"], ["--env_shards", "2"]):
+        assert auto_devices([*argv, *chosen], 2, quiet) == []
+    assert auto_devices(argv, 2, {"WRL_DISTRIBUTED": "1"}) == []
+    assert auto_devices(argv, 2, {"XLA_FLAGS": "--xla_force_host_platform_device_count=1"}) == []
+    assert auto_devices(["--env", "Warehouse-12x12-v0"], 2, quiet) == [] and auto_devices([], 2, quiet) == []
+    # a resumed run keeps the devices and environment shards it recorded (a missing run: nothing added)
+    (tmp_path / "config.json").write_text('{"devices": 2, "env_shards": 2}')
+    assert auto_devices(["--resume", "--out", str(tmp_path)], 16, quiet) == ["--devices", "2", "--env-shards", "2"]
+    assert auto_devices(["--resume", "--out", str(tmp_path / "missing")], 16, quiet) == []

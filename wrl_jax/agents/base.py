@@ -147,8 +147,8 @@ class AlgoSpec:
             applies unless its flags say otherwise (the fleet trains with a larger
             block penalty than FLEET_SPEC.md's default); recorded in the run's
             ``env_overrides`` like any flag.
-        preset_env_defaults: preset name -> environment overrides that preset needs, applied over
-            ``env_defaults`` (the procedural planning preset reads the map, its MLP sibling does not).
+        preset_env_defaults: preset name -> environment name -> overrides that preset needs there, applied
+            over ``env_defaults`` (the procedural planning preset reads the map, its MLP sibling does not).
     """
 
     name: str
@@ -161,7 +161,7 @@ class AlgoSpec:
     study: Mapping[str, str] | None = None
     env_presets: Mapping[str, str] = dataclasses.field(default_factory=dict)
     env_defaults: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
-    preset_env_defaults: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
+    preset_env_defaults: Mapping[str, Mapping[str, Mapping[str, Any]]] = dataclasses.field(default_factory=dict)
 
     def preset_for(self, env_name: str) -> str:
         """The preset a command uses on ``env_name`` when ``--preset`` is not given."""
@@ -171,7 +171,7 @@ class AlgoSpec:
         """The environment overrides a command applies on ``env_name`` with ``preset`` (default: the
         environment's own preset) unless its flags change them."""
         preset = self.preset_for(env_name) if preset is None else preset
-        return {**self.env_defaults.get(env_name, {}), **self.preset_env_defaults.get(preset, {})}
+        return {**self.env_defaults.get(env_name, {}), **self.preset_env_defaults.get(preset, {}).get(env_name, {})}
 
 
 @struct.dataclass

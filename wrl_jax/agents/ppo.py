@@ -12,8 +12,10 @@ One update of one seed (:meth:`PPO.update`):
    time-limit step still bootstraps from the value of the state it reached,
    only a delivery zeroes the future.
 4. ``update_epochs`` passes over the batch in ``num_minibatches`` shuffled
-   minibatches: clipped surrogate, squared-error value loss, entropy bonus,
-   one global-norm gradient clip over actor and critic together, Adam.
+   minibatches (with ``encoder="propagation"``: shuffled environments, each with its
+   steps in order, so a leg's rows are propagated once): clipped surrogate,
+   squared-error value loss, entropy bonus, one global-norm gradient clip over actor
+   and critic together, Adam.
 
 Reward scale. Rewards span -10.5 to +250 (and returns about 270). Left as they
 are, the value loss is ~10^4 times the policy loss, dominates the global-norm

@@ -62,6 +62,8 @@ class PPOConfig:
         propagation_rounds: ``0`` (the default): propagate until the values stop changing, so they
             reach every cell whatever the route's length; ``k > 0``: ``k`` rounds, paths of at most
             ``k`` moves (cells farther away read as unreachable).
+        propagation_walls: shelves are walls to that propagation (the default); ``False`` learns their
+            cost like a floor cell's (it then stays only as dear as the training floors' detours need).
 
     Traced (vmappable, :class:`PPOHyper`):
         learning_rate, gamma, gae_lambda, clip_eps, ent_coef, vf_coef, max_grad_norm, reward_scale.
@@ -82,6 +84,7 @@ class PPOConfig:
     critic: str = "local"
     encoder: str = "mlp"
     propagation_rounds: int = 0
+    propagation_walls: bool = True
     learning_rate: float = 0.01
     gamma: float = 0.95
     gae_lambda: float = 0.6
@@ -212,9 +215,10 @@ The MLP of :data:`PROCEDURAL_MLP` reads the window, the memory and, instead of t
 propagated over the whole map with learned costs until they converge (:mod:`wrl_jax.agents.propagation`);
 the environment observes its map (:data:`PRESET_ENV_DEFAULTS`)."""
 
-PRESET_ENV_DEFAULTS = {"procedural": {"observe_map": True}, "procedural_mlp": {"observe_map": False}}
-"""What a preset needs of the environment, over the environment's own defaults (the planning
-preset reads the map; the MLP would take it as 768 more inputs, and did worse with them)."""
+PRESET_ENV_DEFAULTS = {"procedural": {"Procedural-Warehouse-v0": {"observe_map": True}},
+                       "procedural_mlp": {"Procedural-Warehouse-v0": {"observe_map": False}}}
+"""What a preset needs of an environment, over the environment's own defaults (the planning preset reads
+the map; the MLP would take it as 768 more inputs, and did worse with them). Other environments: nothing."""
 
 PROCEDURAL_ENV_DEFAULTS = {"observe_last_action": True, "observe_visited": True, "visit_levels": 3}
 """What ``python train_ppo.py --env Procedural-Warehouse-v0`` changes in the environment unless told otherwise.

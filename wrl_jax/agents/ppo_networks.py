@@ -73,10 +73,10 @@ class ActorCritic:
         propagation per run of them, the same values: :func:`~wrl_jax.agents.propagation.map_features_by_run`)."""
         if self.map_layout is None:
             return obs
-        rounds = self.config.propagation_rounds
+        rounds, walls = self.config.propagation_rounds, self.config.propagation_walls
         if by_run and rounds == 0 and obs.ndim == 2:
-            return propagation.map_features_by_run(actor["propagation"], obs, self.map_layout)
-        return propagation.map_features(actor["propagation"], obs, self.map_layout, rounds)
+            return propagation.map_features_by_run(actor["propagation"], obs, self.map_layout, walls=walls)
+        return propagation.map_features(actor["propagation"], obs, self.map_layout, rounds, walls)
 
     def rollout_inputs(self, actor: dict[str, Any], obs: jax.Array, cache: Any = None) -> tuple[jax.Array, Any]:
         """``(inputs, cache)``: :meth:`network_inputs` of a batch of environments' observations, propagating
@@ -85,7 +85,8 @@ class ActorCritic:
             return self.network_inputs(actor, obs), cache
         if cache is None:
             cache = propagation.init_leg_cache(obs, self.map_layout)
-        return propagation.map_features_cached(actor["propagation"], obs, self.map_layout, cache)
+        return propagation.map_features_cached(actor["propagation"], obs, self.map_layout, cache,
+                                               walls=self.config.propagation_walls)
 
     def policy_memory(self) -> PolicyMemory | None:
         """With ``encoder="propagation"`` (converged): each episode's values, propagated once per leg."""
@@ -97,7 +98,7 @@ class ActorCritic:
 
         def logits(network_params, memory, obs):
             inputs, memory = propagation.map_features_cached(network_params["propagation"], obs, self.map_layout,
-                                                             memory)
+                                                             memory, walls=self.config.propagation_walls)
             return self.forward(network_params, obs, inputs=inputs), memory
 
         def greedy(network_params, memory, obs):
@@ -179,8 +180,10 @@ class ActorCritic:
         if self.map_layout is not None:  # the MLPs see the features, not the map; the actor's propagation
             _, height, width = self.map_layout  # is counted with the actor, the critic shares it
             obs = self.num_features
-            # Converged propagation runs as many rounds as the longest route: H + W is the estimate counted.
-            plan = propagation.propagation_forward_flops(height, width, cfg.propagation_rounds or height + width)
+            # Converged, the propagation runs once per leg of an episode for as many rounds as the leg's
+            # longest route: data-dependent, so not counted (the count is then the MLPs', a lower bound).
+            rounds = cfg.propagation_rounds
+            plan = propagation.propagation_forward_flops(height, width, rounds) if rounds else 0
         else:
             plan = 0
         actor = mlp_forward_flops(obs, hidden, actions) + plan

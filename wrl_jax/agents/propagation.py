@@ -62,6 +62,11 @@ COST_PARAMETER_SCALE = 5.0
 faster under Adam (whose steps have about the learning rate's size whatever the gradient's) than the MLPs
 (chosen when shelves' costs were learned too: at 1 they had grown too slowly, docs/procedural.md)."""
 
+COST_RANGE = (0.01, 16.0)
+"""Where a learned cost may lie. Above zero by a margin: a cost below a value's float32 spacing would
+make two neighbours' values equal, and the backward pass's best moves could then run in a circle.
+Bounded: a path of up to 256 cells then stays far above ``-BIG / 2``, the reached test."""
+
 _UNIT_COST_BIAS = math.log(math.e - 1.0) / COST_PARAMETER_SCALE  # softplus = 1: every cell costs one move at first
 
 
@@ -82,14 +87,16 @@ def shifted(x: jax.Array, d_row: int, d_col: int, fill: float) -> jax.Array:
     return padded[..., 1 + d_row : 1 + d_row + height, 1 + d_col : 1 + d_col + width]
 
 
-def cost_map(params: dict[str, jax.Array], blocked: jax.Array) -> jax.Array:
-    """``(..., H, W)`` float32 > 0: the learned cost of leaving each free cell; :data:`BIG` on blocked cells
-    (shelves and off the map), which no path crosses."""
+def cost_map(params: dict[str, jax.Array], blocked: jax.Array, walls: bool = True) -> jax.Array:
+    """``(..., H, W)`` float32 > 0: the learned cost of leaving each free cell, within ``COST_RANGE``;
+    :data:`BIG` on blocked cells (shelves and off the map), which no path crosses. ``walls=False``: blocked
+    cells get learned costs too (the encoder as it first was; docs/procedural.md has why it is not kept)."""
     logit = params["bias"]
     for i in range(3):
         for j in range(3):
             logit = logit + params["kernel"][i, j] * shifted(blocked, i - 1, j - 1, 1.0)
-    return jnp.where(blocked > 0.5, BIG, jax.nn.softplus(COST_PARAMETER_SCALE * logit))
+    cost = jnp.clip(jax.nn.softplus(COST_PARAMETER_SCALE * logit), *COST_RANGE)
+    return jnp.where(blocked > 0.5, BIG, cost) if walls else cost
 
 
 def neighbour(x: jax.Array, d_row: int, d_col: int) -> jax.Array:
@@ -297,16 +304,17 @@ def leg_key(obs: jax.Array, layout: tuple[int, int, int]) -> jax.Array:
     return jnp.concatenate([obs[..., offset : offset + cells], obs[..., offset + 2 * cells : offset + 3 * cells]], -1)
 
 
-def map_features(params: dict[str, jax.Array], obs: jax.Array, layout: tuple[int, int, int], rounds: int = 0):
+def map_features(params: dict[str, jax.Array], obs: jax.Array, layout: tuple[int, int, int], rounds: int = 0,
+                 walls: bool = True):
     """``(..., D - 3 H W + NUM_FEATURES)``: the MLPs' input, the observation without its map, then
-    :func:`robot_features` of the values propagated over it with ``params``' costs."""
+    :func:`robot_features` of the values propagated over it with ``params``' costs (:func:`cost_map`)."""
     rest, blocked, robot, target = split_map(obs, layout)
-    values = propagate(cost_map(params, blocked), target, rounds)
+    values = propagate(cost_map(params, blocked, walls), target, rounds)
     return jnp.concatenate([rest, robot_features(values, robot)], axis=-1)
 
 
 def map_features_by_run(params: dict[str, jax.Array], obs: jax.Array, layout: tuple[int, int, int],
-                        chunk: int = 16) -> jax.Array:
+                        chunk: int = 16, walls: bool = True) -> jax.Array:
     """:func:`map_features` (converged) of ``(N, D)`` observations, one propagation per run of
     consecutive rows with the same :func:`leg_key`: a minibatch ordered by environment and time holds
     a few legs, not ``N`` maps. Equal to :func:`map_features` row by row, gradient included."""
@@ -317,7 +325,7 @@ def map_features_by_run(params: dict[str, jax.Array], obs: jax.Array, layout: tu
     run = jnp.cumsum(starts) - 1  # each row's run
     padded = -(-number // chunk) * chunk
     first = jnp.nonzero(starts, size=padded, fill_value=0)[0]  # each run's first row
-    values = propagate_first(cost_map(params, blocked[first]), target[first], run[-1] + 1, chunk)
+    values = propagate_first(cost_map(params, blocked[first], walls), target[first], run[-1] + 1, chunk)
     return jnp.concatenate([rest, robot_features(values[run], robot)], axis=-1)
 
 
@@ -329,7 +337,7 @@ def init_leg_cache(obs: jax.Array, layout: tuple[int, int, int]) -> tuple[jax.Ar
 
 
 def map_features_cached(params: dict[str, jax.Array], obs: jax.Array, layout: tuple[int, int, int],
-                        cache: tuple[jax.Array, jax.Array], chunk: int = 8):
+                        cache: tuple[jax.Array, jax.Array], chunk: int = 8, walls: bool = True):
     """``(features, cache)``: :func:`map_features` (converged) of ``(E, D)`` observations, propagating
     only the rows whose leg changed since the cache was made (``chunk`` at a time). For rollouts and
     evaluation, where a row is one environment over time: a leg lasts many steps. Not differentiable."""
@@ -344,7 +352,7 @@ def map_features_cached(params: dict[str, jax.Array], obs: jax.Array, layout: tu
     def body(start, values):
         index = jax.lax.dynamic_slice_in_dim(rows, start, chunk)
         safe = jnp.minimum(index, number - 1)
-        fresh = propagate(cost_map(params, blocked[safe]), target[safe])
+        fresh = propagate(cost_map(params, blocked[safe], walls), target[safe])
         return values.at[index].set(fresh, mode="drop")
 
     values = _chunks(body, jnp.sum(stale, dtype=jnp.int32), chunk, values)

@@ -93,7 +93,7 @@ def evaluate_layouts(run_dir: str | os.PathLike, paths: list[str]) -> dict[str, 
     network_params = jax.vmap(algo.network_params)(runners)
     params = jax.tree.map(lambda x: x[0], runners.env_params)
     report = procedural_evaluation.evaluate_sets(algo.greedy_action, network_params, env, params, sets,
-                                                 trainer.seeds, overall="overall")
+                                                 trainer.seeds, overall="overall", memory=algo.policy_memory())
     overall = report.pop("overall")
     label = (f"{spec.name.upper()} {meta['env']} ({meta.get('preset', '?')}, {len(trainer.seeds)} seeds, "
              f"{meta['updates_done'] * trainer.steps_per_update:,} steps) on {len(sets)} layout file(s)")

@@ -93,33 +93,57 @@ The planning policy's update is elementwise work that one XLA CPU device runs on
 as many devices as cores (and seeds) it trained 1.4x faster on 2 cores (docs/procedural.md)."""
 
 
+def _flag(arg: str) -> str:
+    """A command-line word with the flag part's underscores as dashes (tyro takes both spellings)."""
+    if not arg.startswith("--"):
+        return arg
+    name, sep, value = arg.partition("=")
+    return name.replace("_", "-") + sep + value
+
+
 def _option(argv: list[str], name: str) -> str | None:
     """The value of ``name V`` or ``name=V`` in a command line, else ``None``."""
     value = next((argv[i + 1] for i, arg in enumerate(argv[:-1]) if arg == name), None)
     return next((arg.split("=", 1)[1] for arg in argv if arg.startswith(f"{name}=")), value)
 
 
-def auto_devices(argv: list[str], cpu_count: int | None) -> int:
-    """The ``--devices`` a training command adds to ``argv``: the most devices, at most the CPU's cores, that
-    divide the seeds evenly, on :data:`AUTO_DEVICES_ENVS`; ``0`` (add nothing) where the user chose
-    (``--devices``, ``--distributed``, ``--env-shards``) or on other environments. ``--resume`` takes the
-    count the run recorded in its ``config.json`` (a resume on the same devices is exact)."""
+def auto_devices(argv: list[str], cpu_count: int | None, environ: dict[str, str] | None = None) -> list[str]:
+    """The flags a training command adds to ``argv`` about devices, where the user chose nothing.
+
+    On :data:`AUTO_DEVICES_ENVS`: ``--devices N``, the most devices, at most the CPU's cores, that divide the
+    seeds evenly. ``--resume``: the ``--devices`` and ``--env-shards`` the run recorded in its
+    ``config.json`` (a resume on the same devices is exact). Nothing where the user chose (``--devices``,
+    ``--env-shards``, ``--distributed`` or ``WRL_DISTRIBUTED``, a host device count in ``XLA_FLAGS``), on
+    other environments, or on one core.
+    """
+    environ = os.environ if environ is None else environ
+    argv = [_flag(arg) for arg in argv]
     chosen = ("--devices", "--distributed", "--env-shards")
-    if any(arg == flag or arg.startswith(f"{flag}=") for arg in argv for flag in chosen):
-        return 0
+    if (any(arg == flag or arg.startswith(f"{flag}=") for arg in argv for flag in chosen)
+            or environ.get("WRL_DISTRIBUTED", "") not in ("", "0") or HOST_DEVICES_FLAG in environ.get("XLA_FLAGS", "")):
+        return []
     if "--resume" in argv:
         out = _option(argv, "--out")
         try:
-            recorded = json.loads((Path(out) / "config.json").read_text()).get("devices", 1) if out else 1
+            recorded = json.loads((Path(out) / "config.json").read_text()) if out else {}
         except (OSError, ValueError):
-            recorded = 1  # the command's own checks report a missing or broken run
-        return recorded if isinstance(recorded, int) and recorded > 1 else 0
-    env = _option(argv, "--env")
-    if env not in AUTO_DEVICES_ENVS or not cpu_count or cpu_count < 2:
-        return 0
+            recorded = {}  # the command's own checks report a missing or broken run
+        flags = []
+        for name in ("devices", "env_shards"):
+            value = recorded.get(name, 1)
+            if isinstance(value, int) and value != 1:
+                flags += [f"--{name.replace('_', '-')}", str(value)]
+        return flags
+    if _option(argv, "--env") not in AUTO_DEVICES_ENVS or not cpu_count or cpu_count < 2:
+        return []
     seeds = max(1, int_option_from_argv(argv, "--num-seeds", 4))
     count = max(d for d in range(1, min(cpu_count, seeds) + 1) if seeds % d == 0)
-    return count if count > 1 else 0
+    return ["--devices", str(count)] if count > 1 else []
+
+
+CHOSEN_DEVICES_VARIABLE = "WRL_DEVICES_CHOSEN_BY_COMMAND"
+"""Set by :func:`apply_for_command` to the ``--devices`` it chose: the command falls back to one device if
+JAX's backend is not the CPU (the split is the CPU's; a GPU machine has its own device count)."""
 
 
 def apply_for_command(argv: list[str], choose_devices: bool = False) -> list[str]:
@@ -132,14 +156,16 @@ def apply_for_command(argv: list[str], choose_devices: bool = False) -> list[str
     for ``--distributed`` (or ``WRL_DISTRIBUTED=1``), JAX's distributed runtime
     (:mod:`wrl_jax._distributed`), which must also come before the backend.
 
-    ``choose_devices``: add ``--devices N`` where :func:`auto_devices` says so. Returns the command
-    line to parse (``argv``, or ``argv`` with that flag).
+    ``choose_devices``: add the flags of :func:`auto_devices`. Returns the command line to parse.
     """
     from wrl_jax import _distributed
 
-    if choose_devices and (count := auto_devices(argv, os.cpu_count())):
-        argv = [*argv, "--devices", str(count)]
-        print(f"{count} host devices, one per core (--devices {count}; --devices 1 keeps one)")
+    if choose_devices and (flags := auto_devices(argv, os.cpu_count())):
+        argv = [*argv, *flags]
+        if "--resume" not in argv:
+            count = flags[1]
+            os.environ[CHOSEN_DEVICES_VARIABLE] = count
+            print(f"the CPU split into {count} host devices for the seeds (--devices {count}; --devices 1 keeps one)")
     apply_xla_opt_level(opt_level_from_argv(argv))
     # ``--devices N`` on a CPU: split it into N XLA devices, so that there are N to shard over.
     os.environ["XLA_FLAGS"] = xla_flags_with_host_devices(os.environ.get("XLA_FLAGS", ""),

@@ -10,13 +10,14 @@ per-item table) and ``summary.json``.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import sys
 import time
 from typing import Any
 
-from wrl_jax.cli.machine import apply_xla_opt_level, cpu_info
+from wrl_jax.cli.machine import CHOSEN_DEVICES_VARIABLE, apply_xla_opt_level, cpu_info
 from wrl_jax.agents.base import config_to_dict
 from wrl_jax.cli.options import Command, build, parse
 
@@ -48,6 +49,9 @@ def train(command: Command) -> dict[str, Any]:
         checkpoint_every=run.checkpoint_every,
         progress=run.progress,
     )
+    if os.environ.get(CHOSEN_DEVICES_VARIABLE) == str(run.devices) and jax.default_backend() != "cpu":
+        run = dataclasses.replace(run, devices=1)  # the command split the CPU; this machine runs elsewhere
+        print(f"one {jax.default_backend()} device (the host-device split applies to CPUs)", file=sys.stderr)
     if run.devices != 1 or run.env_shards != 1 or run.distributed:
         from wrl_jax.training import sharding
 

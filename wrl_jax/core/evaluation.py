@@ -23,7 +23,6 @@ GreedyFn = Callable[[Any, jax.Array], jax.Array]
 """``greedy_action(network_params, obs) -> action`` for one observation."""
 
 
-
 @dataclasses.dataclass(frozen=True)
 class PolicyMemory:
     """A policy that keeps something between the steps of a batch of episodes (batch-level functions).
@@ -32,7 +31,9 @@ class PolicyMemory:
     changes, so an evaluation propagates once per leg instead of once per step. ``init(network_params,
     obs)`` gives the memory of a batch ``(B, obs_size)``; ``greedy(network_params, memory, obs)`` and
     ``sample(network_params, memory, obs, keys)`` (one key per row) give ``(actions (B,), memory)``,
-    the same actions as :meth:`~wrl_jax.agents.base.Algorithm.greedy_action` and ``sample_action`` row by row.
+    the same actions as :meth:`~wrl_jax.agents.base.Algorithm.greedy_action` and ``sample_action`` row by row
+    (an evaluation given a memory uses it instead of those). ``sample`` may be ``None`` for a policy without
+    a sampled form.
     """
 
     init: Callable[[Any, jax.Array], Any]
