@@ -204,3 +204,28 @@ def test_ppo_gaussian_policy_learns_the_corridor(corridor):
     std = np.exp(np.asarray(actors["log_std"][0], np.float64))
     expected = (-0.5 / std**2 - np.log(std) - 0.5 * math.log(2 * math.pi)).sum()
     np.testing.assert_allclose(np.asarray(log_prob), expected, rtol=1e-5)
+
+
+def test_sac_chunks_and_resume_give_the_same_bits(corridor, tmp_path):
+    """The off-policy loop through the driver: the chunking of the updates and a resume from a checkpoint do
+    not change a bit of the run (the replay buffer, the targets and the temperature are in the checkpoint)."""
+    env, params = corridor
+    algo = SAC(dataclasses.replace(tiny(SACConfig), total_timesteps=8 * 24, learning_starts=96), env, params)
+    assert algo.num_updates == 24
+
+    def trainer(chunk: int):
+        return training.Trainer(algo, [0, 1], training.LoopConfig(chunk_updates=chunk, eval_every=0, progress=False))
+
+    def same(a, b) -> bool:
+        leaves_a, leaves_b = jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)
+        return len(leaves_a) == len(leaves_b) and all(
+            np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(leaves_a, leaves_b))
+
+    in_pieces = trainer(8)
+    whole, pieces = training.run(trainer(24)), training.run(in_pieces)
+    assert whole.updates_done == pieces.updates_done == 24 and same(whole.runners, pieces.runners)
+    meta = {"algo": "sac", "config": {"note": "test"}}
+    first = training.run(in_pieces, tmp_path, metadata=meta, stop_after=8)
+    assert first.updates_done == 8 and not first.finished
+    resumed = training.run(in_pieces, tmp_path, metadata=meta, resume=True)
+    assert resumed.finished and same(resumed.runners, whole.runners)
