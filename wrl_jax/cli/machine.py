@@ -61,24 +61,25 @@ def apply_xla_opt_level(level: int) -> None:
     os.environ["XLA_FLAGS"] = xla_flags_with_defaults(os.environ.get("XLA_FLAGS", ""), level)
 
 
-def int_option_from_argv(argv: list[str], name: str, default: int) -> int:
-    """The integer option ``name`` of a command line (``name V`` or ``name=V``), else ``default``.
+def option_from_argv(argv: list[str], name: str) -> str | None:
+    """The first value of option ``name`` in a command line (``name V`` or ``name=V``), else ``None``.
 
-    Read before the command's own parser runs (before JAX starts); a bad value gives ``default`` here
-    and the command's parser reports it.
+    Read before the command's own parser runs (before JAX starts); the parser reports bad values.
     """
     for index, arg in enumerate(argv):
         if arg == name and index + 1 < len(argv):
-            value = argv[index + 1]
-        elif arg.startswith(f"{name}="):
-            value = arg.split("=", 1)[1]
-        else:
-            continue
-        try:
-            return int(value)
-        except ValueError:
-            return default
-    return default
+            return argv[index + 1]
+        if arg.startswith(f"{name}="):
+            return arg.split("=", 1)[1]
+    return None
+
+
+def int_option_from_argv(argv: list[str], name: str, default: int) -> int:
+    """The integer option ``name`` of a command line, else ``default`` (also for a value that is no integer)."""
+    try:
+        return int(option_from_argv(argv, name) or default)
+    except ValueError:
+        return default
 
 
 def opt_level_from_argv(argv: list[str]) -> int:
@@ -101,12 +102,6 @@ def _flag(arg: str) -> str:
     return name.replace("_", "-") + sep + value
 
 
-def _option(argv: list[str], name: str) -> str | None:
-    """The value of ``name V`` or ``name=V`` in a command line, else ``None``."""
-    value = next((argv[i + 1] for i, arg in enumerate(argv[:-1]) if arg == name), None)
-    return next((arg.split("=", 1)[1] for arg in argv if arg.startswith(f"{name}=")), value)
-
-
 def auto_devices(argv: list[str], cpu_count: int | None, environ: dict[str, str] | None = None) -> list[str]:
     """The flags a training command adds to ``argv`` about devices, where the user chose nothing.
 
@@ -123,7 +118,7 @@ def auto_devices(argv: list[str], cpu_count: int | None, environ: dict[str, str]
             or environ.get("WRL_DISTRIBUTED", "") not in ("", "0") or HOST_DEVICES_FLAG in environ.get("XLA_FLAGS", "")):
         return []
     if "--resume" in argv:
-        out = _option(argv, "--out")
+        out = option_from_argv(argv, "--out")
         try:
             recorded = json.loads((Path(out) / "config.json").read_text()) if out else {}
         except (OSError, ValueError):
@@ -134,7 +129,7 @@ def auto_devices(argv: list[str], cpu_count: int | None, environ: dict[str, str]
             if isinstance(value, int) and value != 1:
                 flags += [f"--{name.replace('_', '-')}", str(value)]
         return flags
-    if _option(argv, "--env") not in AUTO_DEVICES_ENVS or not cpu_count or cpu_count < 2:
+    if option_from_argv(argv, "--env") not in AUTO_DEVICES_ENVS or not cpu_count or cpu_count < 2:
         return []
     seeds = max(1, int_option_from_argv(argv, "--num-seeds", 4))
     count = max(d for d in range(1, min(cpu_count, seeds) + 1) if seeds % d == 0)
