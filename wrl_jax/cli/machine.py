@@ -114,8 +114,10 @@ def auto_devices(argv: list[str], cpu_count: int | None, environ: dict[str, str]
     environ = os.environ if environ is None else environ
     argv = [_flag(arg) for arg in argv]
     chosen = ("--devices", "--distributed", "--env-shards")
-    if (any(arg == flag or arg.startswith(f"{flag}=") for arg in argv for flag in chosen)
-            or environ.get("WRL_DISTRIBUTED", "") not in ("", "0") or HOST_DEVICES_FLAG in environ.get("XLA_FLAGS", "")):
+    user_chose = (any(arg == flag or arg.startswith(f"{flag}=") for arg in argv for flag in chosen)
+                  or environ.get("WRL_DISTRIBUTED", "") not in ("", "0")
+                  or HOST_DEVICES_FLAG in environ.get("XLA_FLAGS", ""))
+    if user_chose:
         return []
     if "--resume" in argv:
         out = option_from_argv(argv, "--out")

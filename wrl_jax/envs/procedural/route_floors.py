@@ -17,7 +17,8 @@ uniform in ``max(min_shape, ceil(3/4 max_shape))..max_shape`` (12..16 at the def
 routes grow with the floor. Every floor is connected by construction (up to a few one-cell notches next
 to a wall opening, which are reachable too), so :func:`~wrl_jax.envs.procedural.generators.place`
 accepts practically every first draw (none rejected in 4,000 draws of each family at 16x16) and the repair
-(an empty floor) is practically never used. Like those, they are pure ``jnp`` on the static ``config.max_shape`` and ``jit`` and ``vmap``.
+(an empty floor) is practically never used. Like those, they are pure ``jnp`` on the static
+``config.max_shape`` and ``jit`` and ``vmap``.
 The header words they read (2..11) are their own; the size (0, 1), item count (12) and seeds (14, 15)
 are shared with every family.
 """
