@@ -8,9 +8,13 @@ policy, steps ours from the same state with the same actions and rware's own rep
 and counts the episodes in which the two ever differ (first differing step, and the steps
 holding a tie). Each episode starts from rware's seeded reset, converted by ``from_rware``.
 
+With ``--run DIR`` the actions are a trained run's instead (``train_ppo.py --out DIR`` on the same id):
+seed 0's policy, sampled (``--greedy``: its argmax), from the observations rware gives.
+
 Run from the repository root (needs rware 2.0.0 and networkx)::
 
     .venv/bin/python bench/rware_tie_divergence.py --env rware-tiny-8ag-v2 --episodes 40
+    .venv/bin/python bench/rware_tie_divergence.py --env rware-tiny-4ag-v2 --run runs/mappo-tiny-4ag --episodes 40
 """
 
 from __future__ import annotations
@@ -58,6 +62,30 @@ def tie_steps_holder():
     return has_tie
 
 
+def trained_policy(run_dir: Path, env_name: str, greedy: bool):
+    """``policy(obs (N, D), key) -> (N,)`` actions of seed 0 of a ``train_ppo.py`` run on ``env_name``."""
+    import jax
+
+    from wrl_jax import training
+    from wrl_jax.agents import get_spec
+    from wrl_jax.agents.base import config_from_dict
+    from wrl_jax.cli.options import EnvOptions, build
+    from wrl_jax.training import checkpoint
+
+    meta = checkpoint.read_metadata(run_dir)
+    if meta["env"] != env_name:
+        raise SystemExit(f"--run {run_dir} trained on {meta['env']}, not on --env {env_name}")
+    spec = get_spec(meta["algo"])
+    algo = build(spec, config_from_dict(spec.config_cls, meta["config"]),
+                 EnvOptions(env=meta["env"], **meta.get("env_overrides", {})))
+    trainer = training.Trainer(algo, meta["seeds"], training.LoopConfig(progress=False))
+    runners, _ = checkpoint.load(run_dir, trainer.template())
+    params = algo.network_params(jax.tree.map(lambda leaf: leaf[0], runners))
+    if greedy:
+        return jax.jit(lambda obs, key: algo.greedy_action(params, obs))
+    return jax.jit(lambda obs, key: algo.sample_action(params, obs, key))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--env", default="rware-tiny-8ag-v2", help="a registered rware id")
@@ -66,6 +94,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="episode e resets rware with seed + e")
     parser.add_argument("--forward", type=float, default=0.2,
                         help="P(FORWARD) of the random policy (0.2: uniform over the 5 actions)")
+    parser.add_argument("--run", type=Path, help="act with this trained run's policy (seed 0) instead")
+    parser.add_argument("--greedy", action="store_true", help="with --run: the policy's argmax, not a draw")
     parser.add_argument("--json", type=Path, help="also write the counts here")
     args = parser.parse_args(argv)
 
@@ -83,10 +113,12 @@ def main(argv: list[str] | None = None) -> int:
     env = env.without_default_params()
     has_tie = tie_steps_holder()
     rng = np.random.default_rng(args.seed)
+    policy = None if args.run is None else trained_policy(args.run, args.env, args.greedy)
+    policy_key = jax.random.key(args.seed)
     others = [0, 2, 3, 4]
     episodes = []
     for episode in range(args.episodes):
-        warehouse.reset(seed=args.seed + episode)
+        obs, _ = warehouse.reset(seed=args.seed + episode)
         state, params = from_rware(warehouse)
         generator, draws = warehouse.np_random, []
 
@@ -100,14 +132,19 @@ def main(argv: list[str] | None = None) -> int:
                 return getattr(generator, name)
 
         warehouse._np_random = Recorder()
-        first, ties = None, 0
+        first, ties, team_return = None, 0, 0.0
         for t in range(args.steps):
             arrays = rware_arrays(warehouse)
             n = len(arrays["agent_x"])
-            actions = np.where(rng.random(n) < args.forward, 1, rng.choice(others, n))
+            if policy is None:
+                actions = np.where(rng.random(n) < args.forward, 1, rng.choice(others, n))
+            else:
+                key = jax.random.fold_in(jax.random.fold_in(policy_key, episode), t)
+                actions = np.asarray(policy(np.stack(obs).astype(np.float32), key))
             ties += has_tie(arrays, actions, warehouse.grid_size)
             draws.clear()
             obs, rewards, done, _, _ = warehouse.step([int(a) for a in actions])
+            team_return += float(sum(rewards))
             replacements = np.zeros(env.num_goals, np.int32)
             replacements[: len(draws)] = draws
             our_obs, state, reward, _, truncated, _ = step(env, state, actions.astype(np.int32), replacements, params)
@@ -118,11 +155,15 @@ def main(argv: list[str] | None = None) -> int:
             if not same:
                 first = t
                 break
-        episodes.append({"seed": args.seed + episode, "first_difference": first, "tie_steps_before": ties})
+        episodes.append({"seed": args.seed + episode, "first_difference": first, "tie_steps_before": ties,
+                         "rware_return_until_then": team_return})
         print(f"episode {episode}: {'differs from step ' + str(first) if first is not None else 'identical'}"
-              f" ({ties} tie steps up to there)", flush=True)
+              f" ({ties} tie steps, team return {team_return:g} in rware up to there)", flush=True)
     differing = sum(e["first_difference"] is not None for e in episodes)
-    summary = {"env": args.env, "episodes": args.episodes, "steps": args.steps, "p_forward": args.forward,
+    acting = ("uniform random" if args.forward == 0.2 and args.run is None else f"P(FORWARD) {args.forward}"
+              if args.run is None else f"{'greedy' if args.greedy else 'sampled'} policy of {args.run}")
+    summary = {"env": args.env, "episodes": args.episodes, "steps": args.steps, "actions": acting,
+               "p_forward": args.forward,
                "differing_episodes": differing, "per_episode": episodes}
     print(f"{differing} of {args.episodes} episodes of {args.env} differ from unpatched rware")
     if args.json:

@@ -67,6 +67,7 @@ from wrl_jax.agents.ppo_config import (
 from wrl_jax.agents.ppo_networks import ActorCritic
 from wrl_jax.core.environment import Environment
 from wrl_jax.core.gymnax_base import spaces
+from wrl_jax.envs.rware.registration import registered_ids as rware_ids
 
 
 @struct.dataclass
@@ -404,7 +405,8 @@ SPEC = AlgoSpec(
     study=STUDY_TABLE3,
     env_presets={"Procedural-Warehouse-v0": "procedural", "Fleet-12x12-v0": "fleet", "Fleet-32x32-v0": "fleet",
                  **{f"Continuous-{name}": "continuous" for name in (
-                     "Warehouse-8x8-v0", "Warehouse-12x12-v0", "Warehouse-12x12-Dynamic-v0", "Procedural-Warehouse-v0")}},
+                     "Warehouse-8x8-v0", "Warehouse-12x12-v0", "Warehouse-12x12-Dynamic-v0", "Procedural-Warehouse-v0")},
+                 **{name: "rware" for name in rware_ids()}},
     env_defaults={"Fleet-12x12-v0": FLEET_ENV_DEFAULTS, "Fleet-32x32-v0": FLEET_ENV_DEFAULTS,
                   "Procedural-Warehouse-v0": PROCEDURAL_ENV_DEFAULTS,
                   **{name: CONTINUOUS_ENV_DEFAULTS for name in CONTINUOUS_NAMES}},

@@ -279,8 +279,29 @@ CONTINUOUS = dataclasses.replace(
 )
 """PPO with a Gaussian policy for the continuous warehouse (first setting; docs/continuous.md)."""
 
+RWARE = dataclasses.replace(
+    DEFAULT,
+    obs_encoding="onehot",  # the own cell one-hot (rware's raw x, y are integers up to the grid size)
+    num_envs=32,  # x N agents: every agent's observation is a row of the batch
+    num_steps=64,
+    num_minibatches=4,
+    update_epochs=4,
+    hidden_sizes=(128, 128),
+    learning_rate=1e-3,
+    anneal_ent=False,
+    gamma=0.99,  # a delivery pays once, tens of steps after the pick-up that earned it
+    gae_lambda=0.95,
+    ent_coef=0.01,
+    reward_scale=1.0,  # rware pays 1 per delivery
+    total_timesteps=4_000_000,  # a tenth of the 40M EPyMARL trained its on-policy learners for
+    critic="centralized",  # MAPPO: the critic reads every agent's observation (env.global_state)
+)
+"""MAPPO for RWARE, the default on every ``rware-*`` id (``--critic local``: IPPO); docs/rware.md has what it
+reaches. One-hot cells and small, frequent updates: without them the first deliveries came 2-4x later
+(bench/results/rware/NOTES.md)."""
+
 PRESETS = {"default": DEFAULT, "paper": PAPER, "procedural": PROCEDURAL, "procedural_mlp": PROCEDURAL_MLP,
-           "fleet": FLEET, "continuous": CONTINUOUS}
+           "fleet": FLEET, "continuous": CONTINUOUS, "rware": RWARE}
 
 STUDY_TABLE3 = {
     "Task Completion Rate": "Stable across 20 locations",

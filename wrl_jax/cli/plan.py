@@ -4,6 +4,7 @@ Examples::
 
     python -m wrl_jax.plan --planner pibt --env Fleet-12x12-v0 --num-robots 8 --episodes 32 --json pibt.json
     python -m wrl_jax.plan --planner pursuit --env Continuous-Warehouse-12x12-Dynamic-v0 --episodes 256
+    python -m wrl_jax.plan --planner scripted --env rware-tiny-4ag-v2 --episodes 32 --json scripted.json
 
 The planner names the family: ``greedy`` and ``pibt`` plan fleets, ``pursuit`` drives the continuous
 warehouse. Fleet: all episodes (shifts of ``--horizon`` steps, default the env's ``max_steps``)
@@ -14,7 +15,11 @@ Student-t interval over episodes, the bound ``K / L*`` (FLEET_SPEC.md
 robot blocks and waits per shift. Continuous: episode ``e`` takes item ``e mod I``, all vmapped in one
 program (:func:`wrl_jax.envs.continuous.yardstick.pursuit_episodes`); printed and written: the delivery
 rate, collisions per episode, and per item the mean steps against CONTINUOUS_SPEC.md's yardstick
-``D_i / (v_max dt)`` (``--randomize`` for domain randomization). Bad flags raise ``ValueError`` before
+``D_i / (v_max dt)`` (``--randomize`` for domain randomization). RWARE: ``scripted``, the centralised
+fetch-and-return team (:mod:`wrl_jax.envs.rware.scripted`) on the evaluation's fixed episodes
+(``--seed 0``: those the training evaluation runs), beside a uniform random team on the same ones;
+printed and written: the team return (all agents' rewards over an episode, EPyMARL's number) with a
+95 % interval over episodes, and deliveries per episode. Bad flags raise ``ValueError`` before
 anything compiles; the command prints it and exits with status 2.
 """
 
@@ -32,11 +37,13 @@ from wrl_jax.cli.machine import DEFAULT_XLA_OPT_LEVEL, apply_xla_opt_level, cpu_
 
 def parser() -> argparse.ArgumentParser:
     out = argparse.ArgumentParser(prog="python -m wrl_jax.plan", description=__doc__.split("\n\n")[0])
-    out.add_argument("--planner", default="pibt", help="greedy or pibt (fleet), pursuit (continuous); default pibt")
-    out.add_argument("--env", default="Fleet-12x12-v0", help="a registered fleet or continuous environment")
+    out.add_argument("--planner", default="pibt",
+                     help="greedy or pibt (fleet), pursuit (continuous), scripted (rware); default pibt")
+    out.add_argument("--env", default="Fleet-12x12-v0", help="a registered fleet, continuous or rware environment")
     out.add_argument("--num-robots", type=int, default=None, help="fleet: K, 1..number of start cells (default 4)")
     out.add_argument("--episodes", type=int, default=32, help="E shifts, vmapped (default 32)")
-    out.add_argument("--horizon", type=int, default=None, help="fleet: steps per shift (default: the env's max_steps)")
+    out.add_argument("--horizon", type=int, default=None,
+                     help="fleet, rware: steps per shift or episode (default: the env's max_steps)")
     out.add_argument("--randomize", action="store_true", help="continuous: domain randomization (gains, noise)")
     out.add_argument("--seed", type=int, default=0)
     out.add_argument("--json", type=Path, default=None, help="write the full report here")
@@ -51,7 +58,7 @@ def _positive(name: str, value: Any) -> int:
     return value
 
 
-PLANNER_FAMILIES = {"greedy": "fleet", "pibt": "fleet", "pursuit": "continuous"}
+PLANNER_FAMILIES = {"greedy": "fleet", "pibt": "fleet", "pursuit": "continuous", "scripted": "rware"}
 """Each planner and the environment family it drives."""
 
 
@@ -61,13 +68,17 @@ def check_family(planner: str, env_name: str) -> str:
 
     if planner not in PLANNER_FAMILIES:
         raise ValueError(f"unknown planner {planner!r}; known: greedy, pibt (fleet environments), "
-                         f"pursuit (continuous environments)")
+                         f"pursuit (continuous environments), scripted (rware environments)")
     family, found = PLANNER_FAMILIES[planner], registry.entry(env_name).family
     if found != family:
         hint = {"continuous": "; a continuous environment takes --planner pursuit",
-                "fleet": "; a fleet takes --planner greedy or pibt"}.get(found, "")
+                "fleet": "; a fleet takes --planner greedy or pibt",
+                "rware": "; an rware environment takes --planner scripted"}.get(found, "")
+        names = registry.registered_names(family)
+        shortest = ", ".join(sorted(names, key=lambda name: (len(name), name))[:4])
+        listed = ", ".join(names) if len(names) <= 12 else f"{len(names)} ids, such as {shortest}"
         raise ValueError(f"--env {env_name!r} is not a {family} environment (--planner {planner}){hint}; "
-                         f"{family} environments: {', '.join(registry.registered_names(family))}")
+                         f"{family} environments: {listed}")
     return family
 
 
@@ -126,6 +137,61 @@ def run_pursuit_plan(env_name: str, episodes: int, seed: int = 0, randomize: boo
     return report
 
 
+def run_scripted_plan(env_name: str, episodes: int, horizon: int | None = None, seed: int = 0) -> dict[str, Any]:
+    """Validate, build, run and summarize the scripted RWARE team, and a random team on the same episodes."""
+    import jax
+    import numpy as np
+
+    from wrl_jax.core import registry
+    from wrl_jax.envs.rware import scripted
+    from wrl_jax.envs.rware.evaluation import horizon_of
+    from wrl_jax.stats import mean_ci
+
+    _positive("--episodes", episodes)
+    check_family("scripted", env_name)
+    env, params = registry.make(env_name)
+    horizon = horizon_of(env) if horizon is None else _positive("--horizon", horizon)
+    static = {"num_episodes": episodes, "horizon": horizon, "seed": seed}
+    start = time.perf_counter()
+    compiled = scripted.team_episodes.lower(env, params, team="scripted", **static).compile()
+    compile_s = time.perf_counter() - start
+    start = time.perf_counter()
+    result = jax.device_get(compiled(params))
+    run_s = time.perf_counter() - start
+    floor = jax.device_get(scripted.team_episodes(env, params, team="random", **static))
+    returns, deliveries = np.asarray(result.team_return, np.float64), np.asarray(result.deliveries)
+    interval = mean_ci(returns)
+    return {
+        "env": env_name, "planner": "scripted", "family": "rware", "episodes": episodes, "horizon": horizon,
+        "seed": seed, "num_agents": env.num_agents,
+        "return": interval.mean, "return_ci95": [interval.low, interval.high],
+        "return_min": float(returns.min()), "return_max": float(returns.max()),
+        "deliveries": float(deliveries.sum(axis=1).mean()),
+        "deliveries_per_agent": [float(v) for v in deliveries.mean(axis=0)],
+        "agents_delivering": float((deliveries > 0).mean()), "solved": bool(np.all(deliveries > 0)),
+        "length": float(np.mean(result.length)),
+        "random_return": float(np.mean(floor.team_return)),
+        "random_deliveries": float(np.asarray(floor.deliveries).sum(axis=1).mean()),
+        "settings": {"explore": scripted.EXPLORE, "blocked_explore": scripted.BLOCKED_EXPLORE, "crowd": scripted.CROWD},
+        "unit": "return: all agents' rewards summed over an episode (EPyMARL's RWARE return)",
+        "compile_s": compile_s, "run_s": run_s, "agent_steps_per_s": episodes * horizon * env.num_agents / run_s,
+        "jax": jax.__version__, "machine": cpu_info(),
+    }
+
+
+def format_scripted_report(report: dict[str, Any]) -> str:
+    low, high = report["return_ci95"]
+    per_agent = ", ".join(f"{v:.2f}" for v in report["deliveries_per_agent"])
+    header = (f"scripted on {report['env']}, {report['num_agents']} agents, {report['episodes']} episodes of "
+              f"{report['horizon']} steps (seed {report['seed']}; compile {report['compile_s']:.1f} s, "
+              f"run {report['run_s']:.2f} s)")
+    returns = (f"team return {report['return']:.2f}, 95% CI [{low:.2f}, {high:.2f}] (episodes "
+               f"{report['return_min']:.0f} to {report['return_max']:.0f}); random team {report['random_return']:.2f}")
+    deliveries = (f"deliveries per episode {report['deliveries']:.2f} (per agent {per_agent}); every agent delivered "
+                  f"in every episode: {'yes' if report['solved'] else 'no'}")
+    return f"{header}\n{returns}\n{deliveries}"
+
+
 def format_pursuit_report(report: dict[str, Any]) -> str:
     hits = report["hits_per_episode"]
     excess = "n/a (nothing delivered)" if report["excess_pct"] is None else f"{report['excess_pct']:+.1f} %"
@@ -152,6 +218,8 @@ def format_pursuit_report(report: dict[str, Any]) -> str:
 def format_report(report: dict[str, Any]) -> str:
     if report.get("family") == "continuous":
         return format_pursuit_report(report)
+    if report.get("family") == "rware":
+        return format_scripted_report(report)
     tp, bound = report["throughput"], report["upper_bound"]
     low, high = tp["ci95"]
     interval = "n/a (one episode)" if low is None else f"[{low:.4f}, {high:.4f}]"
@@ -175,11 +243,18 @@ def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     apply_xla_opt_level(args.xla_opt_level)
     try:
-        if check_family(args.planner, args.env) == "continuous":
+        family = check_family(args.planner, args.env)
+        if family == "continuous":
             for flag, value in (("--num-robots", args.num_robots), ("--horizon", args.horizon)):
                 if value is not None:
                     raise ValueError(f"{flag} is for fleets; pure pursuit drives one robot for the env's max_steps")
             report = run_pursuit_plan(args.env, args.episodes, args.seed, args.randomize)
+        elif family == "rware":
+            if args.num_robots is not None:
+                raise ValueError("--num-robots is for fleets; an rware id fixes its agent count")
+            if args.randomize:
+                raise ValueError("--randomize is for continuous environments (--planner pursuit)")
+            report = run_scripted_plan(args.env, args.episodes, args.horizon, args.seed)
         else:
             if args.randomize:
                 raise ValueError("--randomize is for continuous environments (--planner pursuit)")

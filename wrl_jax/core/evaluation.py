@@ -149,6 +149,8 @@ class FamilyEvaluation:
         format_details: ``summary -> str``: a second, detailed table (may be empty).
         progress_metric: ``(seed_summary key, label)`` shown on the progress bar and
             plotted beside the training curves.
+        progress_percent: the progress metric is a rate, shown as a percentage (``False``: a
+            number such as a return, shown as it is).
         train_rates: the family's :class:`TrainRate` s, derived in every log row
             (the driver itself derives only ``mean_return`` and ``mean_length``).
         final_report: optional ``FinalContext -> dict``, run once after training
@@ -170,6 +172,7 @@ class FamilyEvaluation:
     format_report: Callable[..., str]
     format_details: Callable[[dict[str, Any]], str]
     progress_metric: tuple[str, str] = ("eval_success_rate", "eval success")
+    progress_percent: bool = True
     train_rates: tuple[TrainRate, ...] = ()
     final_report: Callable[["FinalContext"], dict[str, Any]] | None = None
     sweep_columns: SweepColumns | None = None

@@ -77,7 +77,8 @@ def describe(rows: list[dict[str, Any]], evaluation: FamilyEvaluation) -> str:
     key, label = evaluation.progress_metric
     evals = [row[key] for row in rows if not math.isnan(row.get(key, math.nan))]
     if evals:
-        text += f" | {label} {100 * float(np.mean(evals[-len(set(r['seed'] for r in rows)):])):.0f}%"
+        latest = float(np.mean(evals[-len(set(r['seed'] for r in rows)):]))
+        text += f" | {label} {100 * latest:.0f}%" if evaluation.progress_percent else f" | {label} {latest:.2f}"
     return text
 
 

@@ -93,7 +93,7 @@ def test_summary_and_report_of_two_seeds():
 
 
 def test_train_ppo_on_rware_reports_the_hooks_numbers(tmp_path):
-    """``train_ppo.py``'s command on rware-tiny-2ag-v2 with the default preset (one-hot cells), MAPPO's
+    """``train_ppo.py``'s command on rware-tiny-2ag-v2 (the ``rware`` preset unless told otherwise), MAPPO's
     centralized critic, evaluated in the loop: it runs and reports; no learning is claimed at this size."""
     out = tmp_path / "run"
     argv = ["--env", "rware-tiny-2ag-v2", "--critic", "centralized", "--num-envs", "4", "--num-steps", "8",
@@ -107,6 +107,17 @@ def test_train_ppo_on_rware_reports_the_hooks_numbers(tmp_path):
     assert ev["episodes"] == evaluation.TRAINING_EPISODES and ev["num_agents"] == 2
     assert ev["per_seed"][0]["length"] == 500 and ev["return"] >= 0 and ev["deliveries"] >= 0
     assert summary["convergence"]["definition"] == evaluation.SOLVED_DEFINITION
+    assert summary["preset"] == "rware" and summary["config"]["learning_rate"] == 1e-3  # the family's preset
     assert "episode return, all agents" in printed.getvalue()
     rows = (out / "metrics.csv").read_text().splitlines()
     assert {"eval_return", "eval_solved", "train_throughput"} <= set(rows[0].split(","))
+
+
+def test_progress_shows_the_return_as_a_number_not_a_percentage():
+    """The progress bar's latest greedy return is the team's mean return over the seeds (12.5 and 7.5: 10.00)."""
+    from wrl_jax.training.log_rows import describe
+
+    rows = [{"seed": s, "episodes": 1.0, "return_sum": 2.0, "train_throughput": 0.01, "eval_return": r}
+            for s, r in ((0, 12.5), (1, 7.5))]
+    text = describe(rows, evaluation.EVALUATION)
+    assert text.endswith("| eval return 10.00"), text

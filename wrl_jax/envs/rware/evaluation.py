@@ -55,12 +55,15 @@ def horizon_of(env: Any) -> int:
     return max_steps if max_steps > 0 else DEFAULT_HORIZON
 
 
-def run_episodes(policy: Callable[[jax.Array], jax.Array], env: Any, params: Any, num_episodes: int,
-                 horizon: int, seed: int = EVAL_SEED) -> RwareEval:
+def run_episodes(policy: Callable[..., jax.Array], env: Any, params: Any, num_episodes: int,
+                 horizon: int, seed: int = EVAL_SEED, *, sees_state: bool = False) -> RwareEval:
     """``policy(obs (N, D)) -> actions (N,)`` on the fixed episodes; jittable (one scan, vmapped over episodes).
 
     Steps after the environment ends an episode (an inactivity limit, or a ``max_steps`` below
-    ``horizon``) count nothing.
+    ``horizon``) count nothing. With ``sees_state`` the policy is ``policy(key, state) -> actions``
+    (a centralised planner such as :mod:`wrl_jax.envs.rware.scripted`): its key at step ``t`` is
+    ``fold_in(fold_in(episode key, 1), t)``; the environment's keys do not change, so both kinds of
+    policy meet the same warehouses and replacement draws.
     """
     if getattr(env, "msg_bits", 0):
         raise ValueError("the rware evaluation drives the 5 movement actions; msg_bits > 0 is not supported")
@@ -72,10 +75,15 @@ def run_episodes(policy: Callable[[jax.Array], jax.Array], env: Any, params: Any
         init = (obs, state, jnp.ones((), bool), jnp.zeros((), jnp.float32), jnp.zeros(count, jnp.int32),
                 jnp.zeros((), jnp.int32))
 
+        def act(obs: jax.Array, state: Any, t: jax.Array) -> jax.Array:
+            if sees_state:
+                return policy(jax.random.fold_in(jax.random.fold_in(key, 1), t), state)
+            return policy(obs)
+
         def body(carry, t):
             obs, state, alive, team_return, deliveries, length = carry
             obs, state, reward, terminated, truncated, info = env.transition(
-                jax.random.fold_in(step_key, t), state, policy(obs), params)
+                jax.random.fold_in(step_key, t), state, act(obs, state, t), params)
             team_return = team_return + jnp.where(alive, reward.sum(), 0.0)
             deliveries = deliveries + (alive & info["delivered"]).astype(jnp.int32)
             length = length + alive.astype(jnp.int32)
@@ -185,6 +193,7 @@ EVALUATION = FamilyEvaluation(
     format_report=format_report,
     format_details=format_details,
     progress_metric=("eval_return", "eval return"),
+    progress_percent=False,
     train_rates=(TrainRate("train_throughput", "deliveries per step (training)", "deliveries_sum", per="step"),),
     sweep_columns=SweepColumns(
         metrics=(
