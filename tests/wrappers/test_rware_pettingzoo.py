@@ -11,7 +11,8 @@ from wrl_jax.wrappers.rware_gymnasium import next_key, reset_jit, transition_jit
 from wrl_jax.wrappers.rware_pettingzoo import RwareParallelEnv, parallel_env
 
 
-@pytest.mark.parametrize("overrides", [{}, {"msg_bits": 2}])
+@pytest.mark.parametrize("overrides", [{}, {"msg_bits": 2}, {"observation_type": "dict", "msg_bits": 1},
+                                       {"observation_type": "image_dict"}])
 def test_parallel_api_test_passes(overrides):
     # tiny-4ag, as the Gymnasium adapter's tests: the programs are shared when both run in one process.
     env = parallel_env("rware-tiny-4ag-v2", max_steps=150, **overrides)

@@ -2,8 +2,10 @@
 
 So that code written for ``gymnasium.make("rware-tiny-4ag-v2")`` (EPyMARL's wrapper, scripts,
 notebooks) runs on the JAX environment unchanged: the same spaces (a ``Tuple`` of ``Discrete(5)``,
-or of ``MultiDiscrete([5, 2, ...])`` with messages, and a ``Tuple`` of ``Box(-inf, inf, (D,),
-float32)``), ``reset(seed) -> (obs tuple, {})`` and ``step(actions) -> (obs tuple, rewards list of
+or of ``MultiDiscrete([5, 2, ...])`` with messages, and a ``Tuple`` of rware's per-agent observation
+space: ``Box(-inf, inf, (D,), float32)`` by default, and rware's own spaces and Python types for
+``observation_type="dict"``, ``"image"`` and ``"image_dict"``, :func:`agent_observation_space` and
+:func:`agent_observations`), ``reset(seed) -> (obs tuple, {})`` and ``step(actions) -> (obs tuple, rewards list of
 np.float64, done, False, {})`` with rware's types, and rware's attribute names on the unwrapped
 env (``n_agents``, ``grid_size``, ``goals``, ...). rware's single ``done`` (its time limit, or
 inactivity limit) is reported as rware reports it: ``terminated=done``, ``truncated=False``
@@ -19,6 +21,7 @@ reproduced in JAX: the same seed gives another episode than rware's, with the sa
 from __future__ import annotations
 
 import functools
+from collections import OrderedDict
 from typing import Any
 
 import gymnasium as gym
@@ -79,8 +82,69 @@ def agent_action_space(env: Rware) -> spaces.Space:
     return spaces.Discrete(NUM_ACTIONS)
 
 
-def agent_observation_space(env: Rware) -> spaces.Box:
-    return spaces.Box(low=-float("inf"), high=float("inf"), shape=(env.obs_size,), dtype=np.float32)
+def agent_observation_space(env: Rware) -> spaces.Space:
+    """rware's per-agent observation space for the env's ``observation_type``, built as rware builds it."""
+    kind = env.observation_type
+    if kind == "flattened":
+        return spaces.Box(low=-float("inf"), high=float("inf"), shape=(env.obs_size,), dtype=np.float32)
+    side = 2 * env.sensor_range + 1
+    if kind in ("image", "image_dict"):  # rware's _use_image_obs: bounds per layer, 4 for agent_direction
+        high = np.stack([np.full((side, side), 4.0 if layer == "agent_direction" else 1.0, np.float32)
+                         for layer in env.image_observation_layers])
+        image = spaces.Box(np.zeros_like(high), high, dtype=np.float32)
+        if kind == "image":
+            return image
+        features = spaces.Box(low=-float("inf"), high=float("inf"), shape=(6,), dtype=np.float32)
+        return spaces.Dict({"image": image, "features": features})  # Gymnasium sorts the keys, as rware's
+    if env.normalised_coordinates:  # rware's _use_slow_obs
+        location = spaces.Box(low=np.zeros(2), high=np.ones(2), shape=(2,), dtype=np.float32)
+    else:
+        location = spaces.Box(low=np.zeros(2), high=np.ones(2) * max(env.height, env.width), shape=(2,),
+                              dtype=np.int32)
+    own = spaces.Dict(OrderedDict({"location": location, "carrying_shelf": spaces.MultiBinary(1),
+                                   "direction": spaces.Discrete(4), "on_highway": spaces.MultiBinary(1)}))
+    sensor = OrderedDict({"has_agent": spaces.MultiBinary(1), "direction": spaces.Discrete(4)})
+    if env.msg_bits:
+        sensor["local_message"] = spaces.MultiBinary(env.msg_bits)
+    sensor.update({"has_shelf": spaces.MultiBinary(1), "shelf_requested": spaces.MultiBinary(1)})
+    return spaces.Dict(OrderedDict({"self": own, "sensors": spaces.Tuple(side * side * (spaces.Dict(sensor),))}))
+
+
+def agent_observations(env: Rware, obs: Any) -> tuple:
+    """The JAX observation (any type, leading agent axis) as rware returns it: a tuple, one per agent.
+
+    FLATTENED and IMAGE: writable float32 arrays; IMAGE_DICT: ``{"image", "features"}``; DICT: rware's
+    nested dicts with its Python types (lists of ints for the ``MultiBinary(1)`` values, ints for
+    directions, an int32 location, a float64 message of an agent and ``[0] * M`` of an empty cell). One
+    difference: without messages rware's sensor dicts also hold ``"local_message": None``, a key its
+    space lacks (Gymnasium's env checker then fails rware's first ``reset``); here the key is left out.
+    """
+    obs = jax.device_get(obs)
+    count = env.num_agents
+    if env.observation_type in ("flattened", "image"):
+        return tuple(np.array(row, dtype=np.float32) for row in np.asarray(obs))
+    if env.observation_type == "image_dict":
+        return tuple({"image": np.array(obs["image"][i], np.float32),
+                      "features": np.array(obs["features"][i], np.float32)} for i in range(count))
+    own, sensors = jax.tree.map(np.asarray, obs["self"]), jax.tree.map(np.asarray, obs["sensors"])
+    agents = []
+    for i in range(count):
+        cells = []
+        for k in range(sensors["direction"].shape[1]):
+            has_agent = int(sensors["has_agent"][i, k, 0])
+            cell = {"has_agent": [has_agent], "direction": int(sensors["direction"][i, k])}
+            if env.msg_bits:
+                cell["local_message"] = (sensors["local_message"][i, k].astype(np.float64) if has_agent
+                                         else env.msg_bits * [0])
+            cell["has_shelf"] = [int(sensors["has_shelf"][i, k, 0])]
+            cell["shelf_requested"] = [int(sensors["shelf_requested"][i, k, 0])]
+            cells.append(cell)
+        agents.append({"self": {"location": np.array(own["location"][i], dtype=np.int32),
+                                "carrying_shelf": [int(own["carrying_shelf"][i, 0])],
+                                "direction": int(own["direction"][i]),
+                                "on_highway": [int(own["on_highway"][i, 0])]},
+                       "sensors": tuple(cells)})
+    return tuple(agents)
 
 
 def joint_action(env: Rware, actions: Any) -> np.ndarray:
@@ -136,7 +200,9 @@ class RwareGymEnv(gym.Env):
         render_mode: ``None`` or ``"ansi"`` (a text map; rware's pyglet viewer is not ported).
         env, params: instead of ``name``: an environment and its params (e.g. from ``make_rware``).
         **overrides: ``make_named``'s overrides, by rware's names: ``reward_type``, ``max_steps``,
-            ``max_inactivity_steps``, ``sensor_range``, ``msg_bits``, ``normalised_coordinates``.
+            ``max_inactivity_steps``, ``sensor_range``, ``msg_bits``, ``normalised_coordinates``,
+            ``observation_type``, ``image_observation_layers``, ``image_observation_directional`` (rware's
+            enum members accepted by name).
     """
 
     metadata = {"render_modes": ["ansi"], "render_fps": 10}
@@ -163,6 +229,10 @@ class RwareGymEnv(gym.Env):
         self.max_inactivity_steps = int(self.params.max_inactivity_steps) or None
         self.reward_type = int(self.params.reward_type)  # rware's RewardType value: 0 global, 1 individual, 2 two-stage
         self.normalised_coordinates = self.env.normalised_coordinates
+        self.observation_type = self.env.observation_type  # a name: "flattened", "dict", "image", "image_dict"
+        if self.observation_type in ("image", "image_dict"):
+            self.image_observation_layers = list(self.env.image_observation_layers)  # names
+            self.image_observation_directional = self.env.image_observation_directional
         self.reward_range = (0, 1)
         self._state: RwareState | None = None
 
@@ -190,10 +260,9 @@ class RwareGymEnv(gym.Env):
             return None
         return render_text(self.env, self.state, self.params)
 
-    @staticmethod
-    def _split(obs) -> tuple[np.ndarray, ...]:
-        """rware's observation: a tuple of writable float32 vectors, one per agent."""
-        return tuple(np.array(row, dtype=np.float32) for row in np.asarray(obs))
+    def _split(self, obs) -> tuple:
+        """rware's observation: a tuple, one per agent (writable float32 vectors by default)."""
+        return agent_observations(self.env, obs)
 
     def __repr__(self) -> str:
         return f"RwareGymEnv({self.name or 'custom'}, n_agents={self.n_agents}, obs={self.env.obs_size})"

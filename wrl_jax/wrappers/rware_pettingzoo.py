@@ -30,6 +30,7 @@ from wrl_jax.wrappers.parallel_base import SharedSpacesParallelEnv
 from wrl_jax.wrappers.rware_gymnasium import (
     agent_action_space,
     agent_observation_space,
+    agent_observations,
     build_rware,
     joint_action,
     next_key,
@@ -66,14 +67,15 @@ class RwareParallelEnv(SharedSpacesParallelEnv):
         self._state_space = gymnasium.spaces.Box(-np.inf, np.inf, (self.rware.global_state_size(),), np.float32)
         self._rng = np.random.default_rng()
         self._state = None
-        self._obs: np.ndarray | None = None
+        self._obs: tuple | None = None  # one per agent, as rware gives them (any observation_type)
+        self._flat: np.ndarray | None = None
 
     # ------------------------------------------------------------ API
     def reset(self, seed: int | None = None, options: dict | None = None):
         if seed is not None:
             self._rng = np.random.default_rng(seed)
         obs, self._state = reset_jit(self.rware, next_key(self._rng), self.params)
-        self._obs = np.array(obs)
+        self._keep(obs)
         self.agents = list(self.possible_agents)
         return {agent: self._obs[i] for i, agent in enumerate(self.agents)}, {agent: {} for agent in self.agents}
 
@@ -87,7 +89,7 @@ class RwareParallelEnv(SharedSpacesParallelEnv):
         joint = joint_action(self.rware, [actions[agent] for agent in self.agents])
         self._state, obs, reward, done, delivered = jax.device_get(
             transition_jit(self.rware, next_key(self._rng), self._state, joint, self.params))
-        self._obs = np.array(obs)
+        self._keep(obs)
         agents, done = self.agents, bool(done)
         observations = {agent: self._obs[i] for i, agent in enumerate(agents)}
         rewards = {agent: float(reward[i]) for i, agent in enumerate(agents)}
@@ -98,11 +100,15 @@ class RwareParallelEnv(SharedSpacesParallelEnv):
             self.agents = []
         return observations, rewards, terminations, truncations, infos
 
+    def _keep(self, obs) -> None:
+        self._obs = agent_observations(self.rware, obs)
+        self._flat = np.asarray(self.rware.flat_obs(obs), np.float32)
+
     def state(self) -> np.ndarray:
-        """The global state (for centralised critics): the agents' last observations, concatenated, float32."""
-        if self._obs is None:
+        """The global state (for centralised critics): the agents' last observations, flattened and concatenated."""
+        if self._flat is None:
             raise ValueError("call reset() first")
-        return self._obs.reshape(-1).copy()
+        return self._flat.reshape(-1).copy()
 
     def render(self):
         if self.render_mode is None:

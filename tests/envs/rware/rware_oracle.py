@@ -30,6 +30,18 @@ STEP = jax.jit(Rware.transition_with, static_argnums=0)
 OBSERVE = jax.jit(Rware.get_obs, static_argnums=0)
 
 
+
+CUSTOM_LAYOUT = """
+g..x.x..g
+.xx.x.xx.
+.xx...xx.
+.........
+X.xx.xx.X
+x.xx.xx.x
+....G....
+"""
+"""A custom rware layout string (goals in three rows, shelves by the walls): upper and lower case alike."""
+
 def ordered_subgraph(graph, nodes):
     """``graph.subgraph(nodes)`` as a new DiGraph whose nodes and edges keep ``graph``'s insertion order."""
     keep = set(nodes)

@@ -77,7 +77,7 @@ def test_sizes_and_layouts():
     (lambda: make_rware(2, request_queue_size=32, shelf_columns=3, shelf_rows=1), "below the layout"),
     (lambda: make_rware(0), "num_agents"),
     (lambda: make_rware(111, shelf_columns=3, shelf_rows=1), "does not fit"),
-    (lambda: make_rware(2, observation_type="image"), "observation_type"),
+    (lambda: make_rware(2, observation_type="pixels"), "observation_type"),
     (lambda: make_rware(2, max_steps=-1), "max_steps"),
     (lambda: make_rware(2, sensor_range=-1), "sensor_range"),
 ])

@@ -112,15 +112,7 @@ def test_registered_parity(name):
     assert_parity(counts)
 
 
-CUSTOM_LAYOUT = """
-g..x.x..g
-.xx.x.xx.
-.xx...xx.
-.........
-X.xx.xx.X
-x.xx.xx.x
-....G....
-"""
+CUSTOM_LAYOUT = oracle.CUSTOM_LAYOUT
 
 SETTINGS = {
     "two-stage-messages-range2": dict(shelf_columns=3, column_height=4, shelf_rows=2, n_agents=6, msg_bits=2,

@@ -3,8 +3,10 @@
 ``wrl_jax.make("rware-tiny-4ag-v2")`` (every id ``import rware`` registers) or
 :func:`make_rware` for rware's other settings. Modules: ``types`` (state, params, codes),
 ``layout`` (floor plans), ``conflicts`` (the move graph), ``dynamics`` (reset, the step
-deterministic in its replacement draws), ``observation`` (the flattened vector), ``env`` (the
-JAX environment), ``registration`` (factories), ``convert`` (from a live rware ``Warehouse``).
+deterministic in its replacement draws), ``observation`` (the flattened vector and the dict),
+``observation_image`` (the image types), ``env`` (the JAX environment), ``registration`` (factories),
+``convert`` (from a live rware ``Warehouse``), ``evaluation`` (the training hook), ``scripted`` (a
+scripted team, the yardstick).
 The rules, read from rware's source, are in bench/results/rware/NOTES.md.
 """
 

@@ -3,8 +3,9 @@
 :func:`from_rware` reads a warehouse (the unwrapped env, after ``reset``; any wrapper is
 unwrapped) into :class:`RwareState` and :class:`RwareParams`, so a rware env set up by hand,
 as rware's own tests do, can be stepped here. :func:`env_from_rware` builds the matching
-environment; :func:`rware_arrays` and :func:`state_arrays` give both sides as the same plain
-NumPy dict, the form the parity tests compare. Nothing here imports rware: the warehouse is
+environment, with the warehouse's observation type (:func:`observation_settings`: FLATTENED,
+DICT, IMAGE or IMAGE_DICT, its image layers and direction flag); :func:`rware_arrays` and
+:func:`state_arrays` give both sides as the same plain NumPy dict, the form the parity tests compare. Nothing here imports rware: the warehouse is
 read through its attributes.
 """
 
@@ -25,9 +26,29 @@ def _warehouse(warehouse: Any) -> Any:
     inner = getattr(warehouse, "unwrapped", warehouse)
     if not hasattr(inner, "shelfs") or not hasattr(inner, "agents") or not inner.agents:
         raise ValueError("from_rware needs a rware Warehouse that has been reset (it has no agents or shelves yet)")
-    if getattr(inner, "fast_obs", None) is not True:
-        raise ValueError("only rware's FLATTENED observation_type is implemented (the warehouse uses another)")
     return inner
+
+
+def observation_settings(warehouse: Any) -> dict[str, Any]:
+    """The warehouse's ``observation_type`` (by name), ``image_observation_layers`` (names) and
+    ``image_observation_directional``, read from the flags rware's constructor sets: ``fast_obs``
+    (FLATTENED), ``image_obs`` (IMAGE), ``image_dict_obs`` alone (IMAGE_DICT), none of them (DICT).
+    """
+    inner = getattr(warehouse, "unwrapped", warehouse)
+    if getattr(inner, "fast_obs", None):
+        kind = "flattened"
+    elif getattr(inner, "image_obs", None):
+        kind = "image"
+    elif getattr(inner, "image_dict_obs", None):
+        kind = "image_dict"
+    else:
+        kind = "dict"
+    settings: dict[str, Any] = {"observation_type": kind}
+    if kind in ("image", "image_dict"):
+        settings["image_observation_layers"] = tuple(getattr(layer, "name", layer)
+                                                     for layer in inner.image_observation_layers)
+        settings["image_observation_directional"] = bool(inner.image_observation_directional)
+    return settings
 
 
 def _layout(inner: Any) -> RwareLayout:
@@ -94,4 +115,4 @@ def env_from_rware(warehouse: Any) -> Rware:
     _, params = from_rware(inner)
     return Rware(params, len(inner.agents), len(inner.request_queue), sensor_range=inner.sensor_range,
                  msg_bits=inner.msg_bits, normalised_coordinates=inner.normalised_coordinates,
-                 name="rware-from-warehouse")
+                 name="rware-from-warehouse", **observation_settings(inner))

@@ -6,9 +6,11 @@ replacement draws), the move graph :mod:`wrl_jax.envs.rware.conflicts`, the obse
 :func:`wrl_jax.envs.rware.registration.make_rware` or ``wrl_jax.make("rware-tiny-4ag-v2")``.
 
 Conventions against rware's Gymnasium surface: one ``(N,)`` int32 action vector (with
-messages ``(N, 1 + M)``: the action, then the bits), ``(N, D)`` float32 observations,
-``(N,)`` float32 rewards, and rware's single ``done`` reported as ``truncated`` (its time and
-inactivity limits are cut-offs, not terminal states), ``terminated`` always False.
+messages ``(N, 1 + M)``: the action, then the bits), ``(N, D)`` float32 observations
+(rware's FLATTENED, the default; ``observation_type`` picks rware's others, each with a leading
+agent axis: :func:`~wrl_jax.envs.rware.observation.observe`), ``(N,)`` float32 rewards, and
+rware's single ``done`` reported as ``truncated`` (its time and inactivity limits are cut-offs,
+not terminal states), ``terminated`` always False.
 
 For multi-agent learners: :meth:`Rware.global_state` is EPyMARL's RWARE state (every agent's
 observation, concatenated), what MAPPO's centralized critic reads (``info["final_global_state"]``
@@ -29,16 +31,37 @@ from wrl_jax.core.gymnax_base import spaces
 from wrl_jax.core.random import split_key
 from wrl_jax.core.spaces import MultiDiscrete
 from wrl_jax.envs.rware.dynamics import draw_replacements, draw_reset, rware_reset, rware_transition
-from wrl_jax.envs.rware.observation import observation_size, rware_observation
+from wrl_jax.envs.rware.observation import (
+    DEFAULT_IMAGE_LAYERS,
+    directional_flag,
+    flat_observation,
+    flat_size,
+    image_layer_names,
+    observation_type_name,
+    observe,
+)
+from wrl_jax.envs.rware.observation_image import FEATURES_SIZE, image_high, image_shape
 from wrl_jax.envs.rware.types import NUM_ACTIONS, RwareParams, RwareState
+
+
+class TreeDict(spaces.Dict):
+    """gymnax's ``Dict`` space for observations that are dicts (gymnax's ``contains`` reads attributes)."""
+
+    def contains(self, x: Any) -> jax.Array:
+        inside = jnp.ones((), bool)
+        for key, space in self.spaces.items():
+            inside = inside & jnp.asarray(space.contains(x[key]))
+        return inside
 
 
 class Rware(Environment[RwareState, RwareParams]):
     """``N`` robots fetching requested shelves to goal cells (rware 2.0.0).
 
     Static configuration: the grid, shelf and goal counts (from ``params``), ``num_agents``,
-    ``queue_size`` (rware's ``request_queue_size``), ``sensor_range``, ``msg_bits`` and
-    ``normalised_coordinates``. ``info`` holds ``delivered`` (per agent: it stood on a goal
+    ``queue_size`` (rware's ``request_queue_size``), ``sensor_range``, ``msg_bits``,
+    ``normalised_coordinates``, ``observation_type`` (``"flattened"``, ``"dict"``, ``"image"``,
+    ``"image_dict"``) and, for the image types, ``image_observation_layers`` (names) and
+    ``image_observation_directional``. ``info`` holds ``delivered`` (per agent: it stood on a goal
     that paid), ``moved``, ``time_limit`` and ``inactivity_limit``.
     """
 
@@ -46,7 +69,9 @@ class Rware(Environment[RwareState, RwareParams]):
     event_metrics = MappingProxyType({"delivered": "deliveries_sum"})
 
     def __init__(self, params: RwareParams, num_agents: int, queue_size: int, *, sensor_range: int = 1,
-                 msg_bits: int = 0, normalised_coordinates: bool = False, name: str = "rware"):
+                 msg_bits: int = 0, normalised_coordinates: bool = False, observation_type: Any = "flattened",
+                 image_observation_layers: Any = DEFAULT_IMAGE_LAYERS, image_observation_directional: bool = True,
+                 name: str = "rware"):
         self.height, self.width = (int(v) for v in params.highway.shape)
         self.num_shelves = int(params.shelf_home.shape[0])
         self.num_goals = int(params.goals.shape[0])
@@ -55,13 +80,22 @@ class Rware(Environment[RwareState, RwareParams]):
         self.sensor_range = int(sensor_range)
         self.msg_bits = int(msg_bits)
         self.normalised_coordinates = bool(normalised_coordinates)
+        self.observation_type = observation_type_name(observation_type)
+        image = self.observation_type in ("image", "image_dict")
+        self.image_observation_layers = image_layer_names(image_observation_layers, needed=image)
+        self.image_observation_directional = directional_flag(image_observation_directional)
         self._name = name
         super().__init__(params)
 
     def static_config(self) -> tuple:
         """The shapes and switches of the programs; not the name, so ids of one shape share their programs."""
-        return (self.height, self.width, self.num_shelves, self.num_goals, self.num_agents, self.queue_size,
+        base = (self.height, self.width, self.num_shelves, self.num_goals, self.num_agents, self.queue_size,
                 self.sensor_range, self.msg_bits, self.normalised_coordinates)
+        if self.observation_type == "flattened":
+            return base
+        if self.observation_type == "dict":
+            return (*base, "dict")
+        return (*base, self.observation_type, self.image_observation_layers, self.image_observation_directional)
 
     @property
     def name(self) -> str:
@@ -78,12 +112,15 @@ class Rware(Environment[RwareState, RwareParams]):
 
     @property
     def obs_size(self) -> int:
-        return observation_size(self.sensor_range, self.msg_bits)
+        """One agent's observation length: FLATTENED's ``D``; for the other types, once flattened (:meth:`flat_obs`)."""
+        return flat_size(self.observation_type, self.sensor_range, self.msg_bits, self.image_observation_layers)
 
     def __repr__(self) -> str:
         return (f"Rware({self._name!r}, grid={self.height}x{self.width}, num_agents={self.num_agents}, "
                 f"shelves={self.num_shelves}, queue_size={self.queue_size}, sensor_range={self.sensor_range}, "
-                f"msg_bits={self.msg_bits})")
+                f"msg_bits={self.msg_bits}"
+                + ("" if self.observation_type == "flattened" else f", observation_type={self.observation_type!r}")
+                + ")")
 
     # ---------------------------------------------------------- gymnax hooks
     def reset_env(self, key: jax.Array, params: RwareParams) -> tuple[jax.Array, RwareState]:
@@ -130,21 +167,30 @@ class Rware(Environment[RwareState, RwareParams]):
             action, message = action[:, 0], action[:, 1:].astype(jnp.float32)
         replacements = jnp.asarray(replacements, jnp.int32)
         state, reward, done, info = rware_transition(state, action, replacements, params, message)
-        obs = rware_observation(state, params, self.sensor_range, self.normalised_coordinates)
-        info = {**info, "final_global_state": obs.reshape(-1)}
+        obs = self._observe(state, params)
+        info = {**info, "final_global_state": self.flat_obs(obs).reshape(-1)}
         return obs, state, reward, jnp.zeros((), bool), done, info
+
+    def _observe(self, state: RwareState, params: RwareParams):
+        return observe(state, params, self.observation_type, self.sensor_range, self.normalised_coordinates,
+                       self.image_observation_layers, self.image_observation_directional)
 
     def get_obs(self, state: RwareState, params: RwareParams | None = None, key: jax.Array | None = None):
         params = self.default_params if params is None else params
-        return rware_observation(state, params, self.sensor_range, self.normalised_coordinates)
+        return self._observe(state, params)
+
+    def flat_obs(self, obs: Any) -> jax.Array:
+        """``(N, obs_size)`` float32: an observation of this env's type, each agent's flattened as
+        ``gymnasium.spaces.flatten`` flattens rware's (the observation itself for FLATTENED)."""
+        return flat_observation(obs, self.observation_type)
 
     def global_state(self, state: RwareState, params: RwareParams | None = None) -> jax.Array:
-        """``(N * D,)`` float32: every agent's observation, concatenated in agent order.
+        """``(N * D,)`` float32: every agent's (flattened) observation, concatenated in agent order.
 
         EPyMARL's state for RWARE (its Gymnasium wrapper concatenates the observations), so a
         centralized critic here sees what MAPPO's sees in the published tables.
         """
-        return self.get_obs(state, params).reshape(-1)
+        return self.flat_obs(self.get_obs(state, params)).reshape(-1)
 
     def global_state_size(self) -> int:
         return self.num_agents * self.obs_size
@@ -152,9 +198,10 @@ class Rware(Environment[RwareState, RwareParams]):
     def onehot_coordinates(self) -> tuple[int, int, int, int] | None:
         """The own ``x, y`` (raw cell indices, ``max(H, W)`` values each), for PPO's ``obs_encoding="onehot"``.
 
-        ``None`` with ``normalised_coordinates`` (x and y then have different scales): use ``"raw"``.
+        ``None`` with ``normalised_coordinates`` (x and y then have different scales), or when the
+        observation is not FLATTENED's vector: use ``"raw"``.
         """
-        if self.normalised_coordinates:
+        if self.normalised_coordinates or self.observation_type != "flattened":
             return None
         return (2, max(self.height, self.width), 0, 1)
 
@@ -192,9 +239,39 @@ class Rware(Environment[RwareState, RwareParams]):
             raise ValueError("with msg_bits > 0 the action is (N, 1 + msg_bits): 0..4, then bits 0..1")
         return MultiDiscrete(NUM_ACTIONS, (self.num_agents,))
 
-    def observation_space(self, params: RwareParams | None = None) -> spaces.Box:
-        """rware's ``Box(-inf, inf)`` per agent, stacked: ``(N, D)`` float32."""
-        return spaces.Box(-jnp.inf, jnp.inf, (self.num_agents, self.obs_size), jnp.float32)
+    def observation_space(self, params: RwareParams | None = None) -> spaces.Box | TreeDict:
+        """rware's per-agent space with a leading agent axis ``N``.
+
+        FLATTENED: ``Box(-inf, inf, (N, D), float32)``. IMAGE: ``Box(0, high, (N, L, 2r+1, 2r+1), float32)``,
+        ``high`` 4 on ``agent_direction`` channels, else 1. IMAGE_DICT: ``Dict(features: Box(-inf, inf, (N, 6)),
+        image: that Box)``. DICT: nested :class:`TreeDict` s of int32 ``Box`` es, one per leaf of
+        :func:`~wrl_jax.envs.rware.observation.dict_observation` (rware's ``Discrete(4)`` directions are
+        ``Box(0, 3)``, its ``MultiBinary`` s ``Box(0, 1)``; the location ``Box(0, max(H, W))`` as rware's, or
+        ``Box(0, 1)`` with ``normalised_coordinates``, where rware's values are ints 0 or 1).
+        """
+        n = self.num_agents
+        if self.observation_type == "flattened":
+            return spaces.Box(-jnp.inf, jnp.inf, (n, self.obs_size), jnp.float32)
+        if self.observation_type in ("image", "image_dict"):
+            shape = image_shape(self.sensor_range, self.image_observation_layers)
+            high = np.broadcast_to(image_high(self.image_observation_layers)[None, :, None, None], (n, *shape))
+            image = spaces.Box(0.0, jnp.asarray(high), (n, *shape), jnp.float32)
+            if self.observation_type == "image":
+                return image
+            return TreeDict({"features": spaces.Box(-jnp.inf, jnp.inf, (n, FEATURES_SIZE), jnp.float32),
+                             "image": image})
+        cells = (2 * self.sensor_range + 1) ** 2
+        i32 = jnp.int32
+        location_high = 1 if self.normalised_coordinates else max(self.height, self.width)
+        own = TreeDict({"location": spaces.Box(0, location_high, (n, 2), i32),
+                        "carrying_shelf": spaces.Box(0, 1, (n, 1), i32), "direction": spaces.Box(0, 3, (n,), i32),
+                        "on_highway": spaces.Box(0, 1, (n, 1), i32)})
+        sensors = {"has_agent": spaces.Box(0, 1, (n, cells, 1), i32), "direction": spaces.Box(0, 3, (n, cells), i32)}
+        if self.msg_bits:
+            sensors["local_message"] = spaces.Box(0, 1, (n, cells, self.msg_bits), i32)
+        sensors["has_shelf"] = spaces.Box(0, 1, (n, cells, 1), i32)
+        sensors["shelf_requested"] = spaces.Box(0, 1, (n, cells, 1), i32)
+        return TreeDict({"self": own, "sensors": TreeDict(sensors)})
 
     def global_state_space(self, params: RwareParams | None = None) -> spaces.Box:
         return spaces.Box(-jnp.inf, jnp.inf, (self.global_state_size(),), jnp.float32)

@@ -15,6 +15,10 @@ import numpy as np
 
 from wrl_jax.envs.rware.env import Rware
 from wrl_jax.envs.rware.layout import RwareLayout, layout_from_params, parse_layout
+from wrl_jax.envs.rware.observation import OBSERVATION_TYPES as OBSERVATION_TYPES  # rware's types, by name
+from wrl_jax.envs.rware.observation import directional_flag, image_layer_names, observation_type_name
+from wrl_jax.envs.rware.observation_image import DEFAULT_IMAGE_LAYERS
+from wrl_jax.envs.rware.observation_image import IMAGE_LAYERS as IMAGE_LAYERS  # rware's ImageLayer names
 from wrl_jax.envs.rware.types import GLOBAL, INDIVIDUAL, TWO_STAGE, RwareParams
 
 SIZES = {"tiny": (1, 3), "small": (2, 3), "medium": (2, 5), "large": (3, 5)}
@@ -27,9 +31,6 @@ AGENT_COUNTS = range(1, 20)
 
 REWARD_TYPES = {"global": GLOBAL, "individual": INDIVIDUAL, "two_stage": TWO_STAGE}
 """rware's ``RewardType`` by name (``"two-stage"``, ``"twostage"`` and rware's enum members are accepted too)."""
-
-OBSERVATION_TYPES = ("flattened",)
-"""Implemented observation types; rware also has ``dict``, ``image`` and ``image_dict``."""
 
 
 def rware_id(size: str, num_agents: int, difficulty: str) -> str:
@@ -86,7 +87,8 @@ def make_rware(num_agents: int = 4, *, shelf_columns: int = 3, column_height: in
                layout: str | RwareLayout | None = None, request_queue_size: int | None = None,
                sensor_range: int = 1, msg_bits: int = 0, max_inactivity_steps: int | None = None,
                max_steps: int | None = 500, reward_type: object = "individual",
-               observation_type: str = "flattened", normalised_coordinates: bool = False,
+               observation_type: object = "flattened", normalised_coordinates: bool = False,
+               image_observation_layers: object = DEFAULT_IMAGE_LAYERS, image_observation_directional: bool = True,
                name: str | None = None) -> tuple[Rware, RwareParams]:
     """``(env, params)`` for any rware warehouse, with rware's argument names and defaults.
 
@@ -95,16 +97,20 @@ def make_rware(num_agents: int = 4, *, shelf_columns: int = 3, column_height: in
     ``num_agents`` and must be below the shelf count (rware fails drawing a replacement
     otherwise: so do four of its registered ids, ``rware-tiny-{16..19}ag-easy-v2``, refused here).
     ``reward_type``: ``"individual"`` (default), ``"global"`` or ``"two_stage"``.
-    Only the ``"flattened"`` observation is implemented.
+    ``observation_type``: ``"flattened"`` (default), ``"dict"``, ``"image"`` or ``"image_dict"`` (or
+    rware's ``ObservationType``); the image types read ``image_observation_layers`` (rware's
+    ``ImageLayer`` names or members, :data:`IMAGE_LAYERS`) and ``image_observation_directional``
+    (see :mod:`wrl_jax.envs.rware.observation_image`), which the others ignore, as rware does.
 
     Example:
         >>> env, params = make_rware(2, layout="x.x\\n...\\n.g.", request_queue_size=1)
         >>> env.obs_size
         71
     """
-    if str(getattr(observation_type, "name", observation_type)).lower() not in OBSERVATION_TYPES:
-        raise ValueError(f"observation_type={observation_type!r} is not implemented; only 'flattened' "
-                         f"(rware's default) is (rware's DICT, IMAGE and IMAGE_DICT are not)")
+    observation_type = observation_type_name(observation_type)
+    image_observation_layers = image_layer_names(image_observation_layers,
+                                                 needed=observation_type in ("image", "image_dict"))
+    image_observation_directional = directional_flag(image_observation_directional)
     if layout is None or (isinstance(layout, str) and not layout):  # rware: `if not layout`
         layout = layout_from_params(shelf_columns, shelf_rows, column_height)
     elif isinstance(layout, str):
@@ -129,7 +135,9 @@ def make_rware(num_agents: int = 4, *, shelf_columns: int = 3, column_height: in
     params = make_params(layout, reward_type=reward_type, max_steps=max_steps,
                          max_inactivity_steps=max_inactivity_steps)
     env = Rware(params, num_agents, request_queue_size, sensor_range=sensor_range, msg_bits=msg_bits,
-                normalised_coordinates=normalised_coordinates, name=name or "rware-custom")
+                normalised_coordinates=normalised_coordinates, observation_type=observation_type,
+                image_observation_layers=image_observation_layers,
+                image_observation_directional=image_observation_directional, name=name or "rware-custom")
     return env, params
 
 
@@ -140,7 +148,8 @@ def make_named(size: str, agents: int, difficulty: str = "", **overrides) -> tup
     """The factory of ``rware-{size}-{N}ag{difficulty}-v2``: rware's registered kwargs, plus overrides.
 
     Overrides are :func:`make_rware`'s other arguments (``reward_type``, ``max_steps``,
-    ``max_inactivity_steps``, ``sensor_range``, ``msg_bits``, ``normalised_coordinates``); the
+    ``max_inactivity_steps``, ``sensor_range``, ``msg_bits``, ``normalised_coordinates``,
+    ``observation_type``, ``image_observation_layers``, ``image_observation_directional``); the
     layout, agent count and queue size are fixed by the id.
     """
     num_agents = agents
@@ -153,7 +162,8 @@ def make_named(size: str, agents: int, difficulty: str = "", **overrides) -> tup
         raise ValueError(f"{fixed} are fixed by the id {rware_id(size, num_agents, difficulty)!r}; "
                          f"use wrl_jax.envs.rware.make_rware for other values")
     known = {"reward_type", "max_steps", "max_inactivity_steps", "sensor_range", "msg_bits",
-             "normalised_coordinates", "observation_type", "name"}
+             "normalised_coordinates", "observation_type", "image_observation_layers",
+             "image_observation_directional", "name"}
     unknown = sorted(set(overrides) - known)
     if unknown:
         raise ValueError(f"unknown rware override(s) {unknown}; known: {', '.join(sorted(known))}")
