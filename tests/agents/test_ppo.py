@@ -19,26 +19,6 @@ from wrl_jax.agents.ppo import PPO
 from wrl_jax.agents.ppo_config import PPOConfig
 
 
-@pytest.mark.slow
-def test_learns_8x8_to_every_item_at_the_optimum():
-    """Two seeds of a small PPO deliver all 10 items of 8x8, at the BFS optimum (14.0 steps).
-
-    The budget has a margin: at 61,440 steps 24 of 24 seeds (0-23) put every item at the
-    optimum; at 40,960 one seed in eight still drove one item 2 steps too far, so the
-    test's outcome depended on the last bits of this CPU's arithmetic.
-    """
-    env, params = wrl_jax.make("Warehouse-8x8-v0")
-    config = dataclasses.replace(ppo_config.DEFAULT, num_envs=16, hidden_sizes=(32, 32), total_timesteps=61_440)
-    trainer = training.Trainer(PPO(config, env, params), [0, 1], training.LoopConfig(eval_every=0, progress=False))
-    result = training.run(trainer)
-    summary = evaluation.summarize(training.final_evaluation(trainer, result), trainer.seeds)
-    assert summary["success_rate"] == 1.0
-    assert summary["mean_steps"] == 14.0 and summary["optimal_rate"] == 1.0
-    assert summary["collision_free_rate"] == 1.0 and summary["stage_switch_rate"] == 1.0
-    last = result.rows[-2:]
-    assert all(row["delivery_rate"] == 1.0 for row in last)
-
-
 # Seeds that appear nowhere else in tests/ and were not used to tune the default preset
 # or to choose this budget (that was done on seeds 9000-9015).
 FRESH_SEEDS = list(range(9100, 9108))
@@ -67,7 +47,7 @@ def test_default_preset_learns_8x8_on_fresh_seeds():
         if not (s["success_rate"] == 1.0 and s["optimal_rate"] == 1.0 and s["collision_free_rate"] == 1.0)
     ]
     assert failed == [], f"seeds not optimal on every item (seed, optimal rate, mean steps): {failed}"
-    assert summary["mean_steps"] == 14.0 and summary["all_seeds_optimal"]
+    assert summary["mean_steps"] == 14.0 and summary["all_seeds_optimal"] and summary["stage_switch_rate"] == 1.0
 
 
 # A map built for the truncation test: the item is 13 steps away, episodes are cut after

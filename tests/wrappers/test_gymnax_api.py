@@ -36,7 +36,8 @@ RWARE_SAMPLE = ("rware-tiny-4ag-v2",)
 """rware's 228 ids share one program per size and agent count: one of them stands for the family here
 (its registry and every id are tested in tests/envs/rware/test_rware_env.py)."""
 SAME_PROGRAM_AS = {"Continuous-Warehouse-12x12-v0": "Continuous-Warehouse-12x12-Dynamic-v0",
-                   "Continuous-Warehouse-8x8-v0": "Continuous-Warehouse-12x12-Dynamic-v0"}
+                   "Continuous-Warehouse-8x8-v0": "Continuous-Warehouse-12x12-Dynamic-v0",
+                   "Fleet-32x32-v0": "Fleet-12x12-v0"}
 """Names whose environment is the class of one checked here, with another grid size or no moving obstacles
 (the same code: the obstacle arrays are empty); the family's own tests cover each setting."""
 NAMES = [name for name in wrl_jax.registered_names()
@@ -148,6 +149,12 @@ def case(request):
 
 
 # ---------------------------------------------------------------- registration
+def test_skipped_names_share_a_checked_class():
+    """Each name left out as another size of a checked environment is built by that environment's class."""
+    for name, checked in SAME_PROGRAM_AS.items():
+        assert checked in NAMES and type(wrl_jax.make(name)[0]) is type(wrl_jax.make(checked)[0]), name
+
+
 def test_names_are_registered_with_gymnax():
     assert NAMES, "no environment registered"
     for name in NAMES:
