@@ -1,15 +1,16 @@
-"""IPPO and MAPPO on EPyMARL's RWARE tasks, through the training command: the learning table of docs/rware.md.
+"""MAPPO and IPPO on EPyMARL's RWARE tasks, through the training command: the learning table of docs/rware.md.
 
-Each (task, learner) pair is one ``python train_ppo.py --env <task>`` run with the ``rware`` preset (IPPO;
-``--critic centralized``: MAPPO), all its seeds vmapped and split over the host's devices. The table
-reads each run's ``summary.json``: the greedy team's return (all agents' rewards summed over a 500-step
-episode, EPyMARL's RWARE number) per seed, deliveries, the seeds solved, and the run's wall time.
+Each (task, learner) pair is one ``python train_ppo.py --env <task>`` run with the ``rware`` preset
+(``--critic centralized``: MAPPO, the preset's own; ``--critic local``: IPPO), all its seeds vmapped and
+split over the host's devices (a pair already finished in ``--out`` is read, not retrained). The table reads each run's ``summary.json``: the greedy team's return (all
+agents' rewards summed over a 500-step episode, EPyMARL's RWARE number) per seed, the seeds in which
+every agent delivers in every episode, and the run's wall time.
 
-Run from the repository root (about 10 minutes a pair on a 2-core CPU)::
+Run from the repository root (10-20 minutes a pair alone on a 2-core CPU; longer with 4 agents)::
 
-    .venv/bin/python bench/rware_learning.py --out bench/results/rware/learning
+    .venv/bin/python bench/rware_learning.py --out runs/rware-learning
     .venv/bin/python bench/rware_learning.py --quick --out /tmp/rware_learning  # a smoke run
-    .venv/bin/python bench/rware_learning.py --collect --out bench/results/rware/learning  # table of finished runs
+    .venv/bin/python bench/rware_learning.py --collect --out runs/rware-learning  # tabulate finished runs only
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ def read_pair(task: str, learner: str, command: list[str], run_dir: Path) -> dic
     ev = summary["eval"]
     return {"task": task, "learner": learner, "command": " ".join(["python", *command]),
             "env_steps_per_seed": summary["env_steps_per_seed"], "wall_s": round(summary["wall_seconds"], 1),
-            "compile_s": round(summary["compile_seconds"], 1), "env_steps_per_s": round(summary["env_steps_per_second"]),
+            "compile_s": round(summary["compile_seconds"], 1), "env_steps_per_s": summary["env_steps_per_second"],
             "return": ev["return"], "return_ci95_over_seeds": ev["return_ci95_over_seeds"],
             "per_seed_return": [row["return"] for row in ev["per_seed"]],
             "deliveries": ev["deliveries"], "seeds_solved": ev["seeds_solved"], "seeds": len(ev["per_seed"])}
@@ -71,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--devices", type=int, default=2, help="host devices the seeds are split over")
     parser.add_argument("--quick", action="store_true", help="tiny budgets: checks the tool, learns nothing")
-    parser.add_argument("--collect", action="store_true", help="reuse the runs already in --out (train the others)")
+    parser.add_argument("--collect", action="store_true", help="tabulate the runs already in --out, train nothing")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -79,7 +80,9 @@ def main(argv: list[str] | None = None) -> int:
         for learner in args.learners:
             command = command_of(task, learner, args.out, args.seeds, args.devices, args.quick)
             run_dir = args.out / f"{task}-{learner.lower()}"
-            if not (args.collect and (run_dir / "summary.json").exists()):
+            if not (run_dir / "summary.json").exists():
+                if args.collect:
+                    continue
                 run_pair(command)
             rows.append(read_pair(task, learner, command, run_dir))
             print(table(rows[-1:]).splitlines()[-1], flush=True)

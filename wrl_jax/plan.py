@@ -1,8 +1,9 @@
 """``python -m wrl_jax.plan --planner {greedy,pibt} --env Fleet-12x12-v0 --num-robots K --episodes E --json OUT``,
-or ``--planner pursuit --env Continuous-Warehouse-12x12-Dynamic-v0``.
+``--planner pursuit --env Continuous-Warehouse-12x12-Dynamic-v0``, or ``--planner scripted --env rware-tiny-4ag-v2``.
 
-Runs a classical fleet planner (throughput) or the continuous warehouse's pure-pursuit controller
-(delivery, collisions, steps against the yardstick); see :mod:`wrl_jax.cli.plan`.
+Runs a classical fleet planner (throughput), the continuous warehouse's pure-pursuit controller
+(delivery, collisions, steps against the yardstick) or RWARE's scripted team (team return); see
+:mod:`wrl_jax.cli.plan`.
 """
 
 import sys

@@ -143,6 +143,8 @@ class AlgoSpec:
         study: the study's Table 3 column for this algorithm (metric -> text), shown beside ours.
         env_presets: environment name -> the preset used for it without ``--preset``
             (an environment family with its own default, e.g. the procedural warehouse).
+        family_presets: environment family -> the preset of its environments that ``env_presets``
+            does not name (every ``rware-*`` id: ``"rware"``).
         env_defaults: environment name -> environment overrides a training command
             applies unless its flags say otherwise (the fleet trains with a larger
             block penalty than FLEET_SPEC.md's default); recorded in the run's
@@ -160,18 +162,31 @@ class AlgoSpec:
     default_num_seeds: int = 4
     study: Mapping[str, str] | None = None
     env_presets: Mapping[str, str] = dataclasses.field(default_factory=dict)
+    family_presets: Mapping[str, str] = dataclasses.field(default_factory=dict)
     env_defaults: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
     preset_env_defaults: Mapping[str, Mapping[str, Mapping[str, Any]]] = dataclasses.field(default_factory=dict)
 
     def preset_for(self, env_name: str) -> str:
         """The preset a command uses on ``env_name`` when ``--preset`` is not given."""
-        return self.env_presets.get(env_name, self.default_preset)
+        from wrl_jax.core import registry
+
+        name = env_name.removeprefix(registry.GYMNAX_PREFIX)
+        if name in self.env_presets:
+            return self.env_presets[name]
+        try:
+            family = registry.entry(name).family
+        except (KeyError, ValueError):
+            return self.default_preset  # an unknown name: the command's own check reports it
+        return self.family_presets.get(family, self.default_preset)
 
     def env_defaults_for(self, env_name: str, preset: str | None = None) -> dict[str, Any]:
         """The environment overrides a command applies on ``env_name`` with ``preset`` (default: the
         environment's own preset) unless its flags change them."""
+        from wrl_jax.core import registry
+
         preset = self.preset_for(env_name) if preset is None else preset
-        return {**self.env_defaults.get(env_name, {}), **self.preset_env_defaults.get(preset, {}).get(env_name, {})}
+        name = env_name.removeprefix(registry.GYMNAX_PREFIX)
+        return {**self.env_defaults.get(name, {}), **self.preset_env_defaults.get(preset, {}).get(name, {})}
 
 
 @struct.dataclass

@@ -67,7 +67,6 @@ from wrl_jax.agents.ppo_config import (
 from wrl_jax.agents.ppo_networks import ActorCritic
 from wrl_jax.core.environment import Environment
 from wrl_jax.core.gymnax_base import spaces
-from wrl_jax.envs.rware.registration import registered_ids as rware_ids
 
 
 @struct.dataclass
@@ -108,6 +107,10 @@ class PPO(ActorCritic, Algorithm[PPORunner]):
     name = "ppo"
 
     def __init__(self, config: PPOConfig, env: Environment, env_params: Any):
+        observation_type = getattr(env, "observation_type", "flattened")
+        if observation_type != "flattened":
+            raise ValueError(f"PPO's networks read a flat observation vector; {env.name} has observation_type="
+                             f"{observation_type!r}: train on observation_type='flattened' (rware's default)")
         space = env.action_space(env_params)
         self.continuous = isinstance(space, spaces.Box)
         self.action_kind = "continuous" if self.continuous else "discrete"
@@ -121,7 +124,7 @@ class PPO(ActorCritic, Algorithm[PPORunner]):
         self.num_agents = getattr(env, "num_agents", None)  # None: single agent, no agent axis
         if config.critic == "centralized" and (self.num_agents is None or not hasattr(env, "global_state")):
             raise ValueError(
-                f"PPO critic='centralized' needs a multi-agent environment with a global state (the fleet); "
+                f"PPO critic='centralized' needs a multi-agent environment with a global state (the fleet, rware); "
                 f"{env.name} is a single-agent {getattr(env, 'family', '?')!r} environment: use critic='local'"
             )
         self.centralized = config.critic == "centralized"
@@ -405,8 +408,8 @@ SPEC = AlgoSpec(
     study=STUDY_TABLE3,
     env_presets={"Procedural-Warehouse-v0": "procedural", "Fleet-12x12-v0": "fleet", "Fleet-32x32-v0": "fleet",
                  **{f"Continuous-{name}": "continuous" for name in (
-                     "Warehouse-8x8-v0", "Warehouse-12x12-v0", "Warehouse-12x12-Dynamic-v0", "Procedural-Warehouse-v0")},
-                 **{name: "rware" for name in rware_ids()}},
+                     "Warehouse-8x8-v0", "Warehouse-12x12-v0", "Warehouse-12x12-Dynamic-v0", "Procedural-Warehouse-v0")}},
+    family_presets={"rware": "rware"},
     env_defaults={"Fleet-12x12-v0": FLEET_ENV_DEFAULTS, "Fleet-32x32-v0": FLEET_ENV_DEFAULTS,
                   "Procedural-Warehouse-v0": PROCEDURAL_ENV_DEFAULTS,
                   **{name: CONTINUOUS_ENV_DEFAULTS for name in CONTINUOUS_NAMES}},

@@ -49,7 +49,7 @@ class PPOConfig:
         bootstrap_truncated: bootstrap a time-limit truncation from the value of
             the state it reached (correct); ``False`` treats it as termination
             (the common bug, kept to show the difference).
-        critic: multi-agent environments only (the fleet). ``"local"``: IPPO, the
+        critic: multi-agent environments only (the fleet, rware). ``"local"``: IPPO, the
             critic sees each robot's own observation; ``"centralized"``: MAPPO,
             the critic sees the robot's observation and the environment's
             global state (``env.global_state``), the actor still only its own.
@@ -297,8 +297,8 @@ RWARE = dataclasses.replace(
     critic="centralized",  # MAPPO: the critic reads every agent's observation (env.global_state)
 )
 """MAPPO for RWARE, the default on every ``rware-*`` id (``--critic local``: IPPO); docs/rware.md has what it
-reaches. One-hot cells and small, frequent updates: without them the first deliveries came 2-4x later
-(bench/results/rware/NOTES.md)."""
+reaches. One-hot cells and small, frequent updates: with rware's raw coordinates, or 4x larger updates at
+half the step size, 4M steps gave about half the return or none (bench/results/rware/NOTES.md)."""
 
 PRESETS = {"default": DEFAULT, "paper": PAPER, "procedural": PROCEDURAL, "procedural_mlp": PROCEDURAL_MLP,
            "fleet": FLEET, "continuous": CONTINUOUS, "rware": RWARE}

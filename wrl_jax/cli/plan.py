@@ -77,7 +77,8 @@ def check_family(planner: str, env_name: str) -> str:
         names = registry.registered_names(family)
         shortest = ", ".join(sorted(names, key=lambda name: (len(name), name))[:4])
         listed = ", ".join(names) if len(names) <= 12 else f"{len(names)} ids, such as {shortest}"
-        raise ValueError(f"--env {env_name!r} is not a {family} environment (--planner {planner}){hint}; "
+        article = "an" if family == "rware" else "a"
+        raise ValueError(f"--env {env_name!r} is not {article} {family} environment (--planner {planner}){hint}; "
                          f"{family} environments: {listed}")
     return family
 

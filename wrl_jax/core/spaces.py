@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 
@@ -20,3 +22,13 @@ class MultiDiscrete(spaces.Space):
     def contains(self, x: jax.Array) -> jax.Array:
         x = jnp.asarray(x)
         return jnp.logical_and(x.shape == self.shape, jnp.all((x >= 0) & (x < self.n)))
+
+
+class TreeDict(spaces.Dict):
+    """gymnax's ``Dict`` space for observations that are dicts (gymnax's ``contains`` reads attributes)."""
+
+    def contains(self, x: Any) -> jax.Array:
+        inside = jnp.ones((), bool)
+        for key, space in self.spaces.items():
+            inside = inside & jnp.asarray(space.contains(x[key]))
+        return inside

@@ -29,8 +29,6 @@ STEP = jax.jit(Rware.transition_with, static_argnums=0)
 """One compiled step per static configuration (the env is a static argument, its params explicit)."""
 OBSERVE = jax.jit(Rware.get_obs, static_argnums=0)
 
-
-
 CUSTOM_LAYOUT = """
 g..x.x..g
 .xx.x.xx.
@@ -41,6 +39,7 @@ x.xx.xx.x
 ....G....
 """
 """A custom rware layout string (goals in three rows, shelves by the walls): upper and lower case alike."""
+
 
 def ordered_subgraph(graph, nodes):
     """``graph.subgraph(nodes)`` as a new DiGraph whose nodes and edges keep ``graph``'s insertion order."""

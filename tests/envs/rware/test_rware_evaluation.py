@@ -121,3 +121,16 @@ def test_progress_shows_the_return_as_a_number_not_a_percentage():
             for s, r in ((0, 12.5), (1, 7.5))]
     text = describe(rows, evaluation.EVALUATION)
     assert text.endswith("| eval return 10.00"), text
+
+
+def test_every_rware_id_takes_the_rware_preset_and_ppo_refuses_other_observation_types():
+    """The preset follows the family, with or without gymnax's prefix; PPO's MLP reads the flattened vector only."""
+    from wrl_jax.agents import ppo
+
+    for name in ("rware-tiny-2ag-v2", "wrl_jax/rware-small-4ag-v2", "rware-large-19ag-hard-v2"):
+        assert ppo.SPEC.preset_for(name) == "rware", name
+    assert ppo.SPEC.preset_for("wrl_jax/Fleet-12x12-v0") == "fleet"
+    assert ppo.SPEC.preset_for("Warehouse-8x8-v0") == ppo.SPEC.preset_for("no-such-env") == "default"
+    env, params = make_rware(2, shelf_columns=3, shelf_rows=1, request_queue_size=2, observation_type="image")
+    with pytest.raises(ValueError, match="observation_type='image'"):
+        ppo.PPO(ppo.PRESETS["rware"], env, params)

@@ -143,7 +143,7 @@ def test_plan_runs_the_scripted_team_and_reports(tmp_path, capsys):
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["--planner", "scripted"], "'Fleet-12x12-v0' is not a rware environment (--planner scripted)"),
+        (["--planner", "scripted"], "'Fleet-12x12-v0' is not an rware environment (--planner scripted)"),
         (["--planner", "scripted", "--env", "Continuous-Warehouse-8x8-v0"], "a continuous environment takes"),
         (["--planner", "pursuit", "--env", "rware-tiny-4ag-v2"], "an rware environment takes --planner scripted"),
         (["--planner", "pibt", "--env", "rware-tiny-4ag-v2"], "an rware environment takes --planner scripted"),

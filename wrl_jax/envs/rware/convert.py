@@ -5,8 +5,8 @@ unwrapped) into :class:`RwareState` and :class:`RwareParams`, so a rware env set
 as rware's own tests do, can be stepped here. :func:`env_from_rware` builds the matching
 environment, with the warehouse's observation type (:func:`observation_settings`: FLATTENED,
 DICT, IMAGE or IMAGE_DICT, its image layers and direction flag); :func:`rware_arrays` and
-:func:`state_arrays` give both sides as the same plain NumPy dict, the form the parity tests compare. Nothing here imports rware: the warehouse is
-read through its attributes.
+:func:`state_arrays` give both sides as the same plain NumPy dict, the form the parity tests
+compare. Nothing here imports rware: the warehouse is read through its attributes.
 """
 
 from __future__ import annotations

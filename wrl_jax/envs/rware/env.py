@@ -29,7 +29,7 @@ import numpy as np
 from wrl_jax.core.environment import Environment, only_where
 from wrl_jax.core.gymnax_base import spaces
 from wrl_jax.core.random import split_key
-from wrl_jax.core.spaces import MultiDiscrete
+from wrl_jax.core.spaces import MultiDiscrete, TreeDict
 from wrl_jax.envs.rware.dynamics import draw_replacements, draw_reset, rware_reset, rware_transition
 from wrl_jax.envs.rware.observation import (
     DEFAULT_IMAGE_LAYERS,
@@ -42,16 +42,6 @@ from wrl_jax.envs.rware.observation import (
 )
 from wrl_jax.envs.rware.observation_image import FEATURES_SIZE, image_high, image_shape
 from wrl_jax.envs.rware.types import NUM_ACTIONS, RwareParams, RwareState
-
-
-class TreeDict(spaces.Dict):
-    """gymnax's ``Dict`` space for observations that are dicts (gymnax's ``contains`` reads attributes)."""
-
-    def contains(self, x: Any) -> jax.Array:
-        inside = jnp.ones((), bool)
-        for key, space in self.spaces.items():
-            inside = inside & jnp.asarray(space.contains(x[key]))
-        return inside
 
 
 class Rware(Environment[RwareState, RwareParams]):
