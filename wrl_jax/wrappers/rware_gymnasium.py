@@ -31,6 +31,7 @@ from gymnasium import spaces
 
 from wrl_jax.core import registry
 from wrl_jax.envs.rware.env import Rware
+from wrl_jax.envs.rware.observation_image import image_high
 from wrl_jax.envs.rware.types import NUM_ACTIONS, RwareParams, RwareState
 from wrl_jax.wrappers.registration import GYM_NAMESPACE
 
@@ -89,8 +90,8 @@ def agent_observation_space(env: Rware) -> spaces.Space:
         return spaces.Box(low=-float("inf"), high=float("inf"), shape=(env.obs_size,), dtype=np.float32)
     side = 2 * env.sensor_range + 1
     if kind in ("image", "image_dict"):  # rware's _use_image_obs: bounds per layer, 4 for agent_direction
-        high = np.stack([np.full((side, side), 4.0 if layer == "agent_direction" else 1.0, np.float32)
-                         for layer in env.image_observation_layers])
+        high = np.broadcast_to(image_high(env.image_observation_layers)[:, None, None],
+                               (len(env.image_observation_layers), side, side)).copy()
         image = spaces.Box(np.zeros_like(high), high, dtype=np.float32)
         if kind == "image":
             return image
