@@ -40,7 +40,7 @@ HEAVY_MODULES = (
     "test_experiments", "test_ppo", "test_fleet_env", "test_dqn", "test_procedural_refresh", "test_training",
     "test_cli", "test_sweep", "test_bench_tools", "test_gymnax_clients", "test_gymnax_api", "test_install",
     "test_off_policy", "test_gymnasium_continuous", "test_rware_parity", "test_yardstick", "test_continuous_procedural",
-    "test_rware_gymnasium", "test_rware_evaluation",
+    "test_rware_gymnasium", "test_rware_evaluation", "test_rware_conflicts", "test_rware_set_order",
 )
 """Test modules by the CPU time their tests took (``pytest -n 2 --durations=0``, summed per module, 2026-12-04), most first.
 

@@ -1,8 +1,9 @@
 """The rware 2.0.0 oracle of the RWARE parity tests: its graph order, its draws, policies and comparisons.
 
 rware decides equal-length chain ties by ``networkx``'s node iteration order, which for some
-components is hash-set order (NOTES.md 9.1); :func:`insertion_order` patches
-``DiGraph.subgraph`` to keep the graph's insertion order, the rule the JAX step implements.
+components is hash-set order (NOTES.md 9.1): our default ``tie_order="set"`` emulates it, so
+rware runs unpatched; :func:`insertion_order` patches ``DiGraph.subgraph`` to keep the graph's
+insertion order, the rule of ``tie_order="insertion"``.
 :class:`DrawRecorder` stands in for a warehouse's generator and records each replacement draw
 as the index rware picked among the candidates, the form ``transition_with`` replays.
 """
@@ -50,6 +51,11 @@ def ordered_subgraph(graph, nodes):
     return sub
 
 
+def tie_rule(tie_order: str):
+    """The context rware runs in to follow ``tie_order``: unpatched for ``"set"``, :func:`insertion_order` otherwise."""
+    return contextlib.nullcontext() if tie_order == "set" else insertion_order()
+
+
 @contextlib.contextmanager
 def insertion_order():
     """Within the block, rware's ``G.subgraph(c).copy()`` keeps G's insertion order (NOTES.md 9.1)."""
@@ -81,9 +87,9 @@ def record_draws(warehouse) -> DrawRecorder:
     return recorder
 
 
-def ours(warehouse):
+def ours(warehouse, tie_order: str = "set"):
     """``(env, state, params)`` of a reset warehouse: the env without default params (one program per shape)."""
-    env = env_from_rware(warehouse).without_default_params()
+    env = env_from_rware(warehouse, tie_order).without_default_params()
     state, params = from_rware(warehouse)
     return env, state, params
 
@@ -197,7 +203,8 @@ def with_messages(actions, rng, msg_bits):
 
 # ------------------------------------------------------------------ the move graph, counted (for coverage)
 def graph_events(arrays, actions, grid_size) -> dict[str, int]:
-    """Which conflict cases a step's move graph holds: ties between equal chains, head-on swaps, rotations.
+    """Which conflict cases a step's move graph holds: ties between equal chains (and how many of them
+    networkx orders by a hash set, ``set_order_tie``), head-on swaps, rotations.
 
     Built the way rware builds it (targets, cancel pass) in plain Python, to show that the
     parity runs exercise the cases the conflict rule exists for.
@@ -216,7 +223,7 @@ def graph_events(arrays, actions, grid_size) -> dict[str, int]:
         blocked = (arrays["carrying"][i] >= 0 and target != (x, y) and target in shelf_cells
                    and not (occupant is not None and arrays["carrying"][occupant] >= 0))
         graph.add_edge((x, y), (x, y) if blocked else target)
-    events = {"tie": 0, "head_on": 0, "rotation": 0}
+    events = {"tie": 0, "set_order_tie": 0, "head_on": 0, "rotation": 0}
     for component in nx.weakly_connected_components(graph):
         sub = graph.subgraph(component)
         try:
@@ -232,6 +239,7 @@ def graph_events(arrays, actions, grid_size) -> dict[str, int]:
                 tied = [u for u in sub.pred[node] if depth[u] == depth[node] - 1]
                 if len(tied) > 1:
                     events["tie"] += 1
+                    events["set_order_tie"] += 2 * len(component) < len(graph)  # networkx iterates a hash set
                     break
                 node = tied[0]
     return events

@@ -3,10 +3,14 @@
 Agents packed onto small grids, most driving forward, give what random play in a warehouse
 rarely does: rotations of four, head-on swaps with queues behind them, and many equal-length
 chains into one cell. The reference builds the graph as rware does (``add_edge(start, target)``
-agent by agent, components, ``find_cycle`` / ``dag_longest_path`` on the ordered subgraph copy).
+agent by agent, components, ``find_cycle`` / ``dag_longest_path`` on the subgraph copy): unpatched
+networkx for ``tie_order="set"`` (its node order is CPython's hash-set order in small components),
+the insertion-ordered copy for ``tie_order="insertion"``.
 """
 
 from __future__ import annotations
+
+import functools
 
 import jax
 import numpy as np
@@ -31,14 +35,14 @@ def crowd(rng, side: int, agents: int, cases: int):
     return starts, targets
 
 
-def reference(starts, targets, side: int):
-    """rware's verdict (insertion order kept) and the case's kind: which agents are committed."""
+def reference(starts, targets, side: int, tie_order: str = "insertion"):
+    """rware's verdict (networkx unpatched for ``"set"``, insertion order kept otherwise) and the case's kinds."""
     graph = nx.DiGraph()
     for start, target in zip(starts, targets):
         graph.add_edge(divmod(int(start), side)[::-1], divmod(int(target), side)[::-1])
     committed, kinds = set(), set()
     for component in nx.weakly_connected_components(graph):
-        sub = oracle.ordered_subgraph(graph, component).copy()
+        sub = (graph.subgraph(component) if tie_order == "set" else oracle.ordered_subgraph(graph, component)).copy()
         try:
             cycle = nx.find_cycle(sub)
             if len(cycle) == 2:
@@ -66,24 +70,64 @@ def _tied(sub) -> bool:
     return False
 
 
-RESOLVE = jax.jit(jax.vmap(resolve_moves))
+def resolver(side: int, tie_order: str):
+    return jax.jit(jax.vmap(functools.partial(resolve_moves, grid_size=(side, side), tie_order=tie_order)))
 
 
 ALL_KINDS = {"head_on", "rotation", "tie", "chain", "stay"}
 
 
-@pytest.mark.parametrize("side, agents, kinds", [
-    (4, 12, ALL_KINDS), (5, 19, ALL_KINDS),
+CROWDS = [
+    (4, 8, ALL_KINDS), (4, 12, ALL_KINDS), (5, 19, ALL_KINDS),
     # Up to conflicts.UNROLL_LIMIT agents the graph is written out agent by agent: the same verdicts.
-    (2, 2, {"head_on", "tie", "chain", "stay"}), (2, 3, ALL_KINDS), (2, 4, ALL_KINDS), (3, 4, ALL_KINDS),
-])
-def test_resolve_matches_networkx(side, agents, kinds):
+    # (The grid's cycles have even length: 3 agents on 2x2 cells cannot rotate; 4 fill it, so no chain
+    # ends in an empty cell. Random crowds of 4 rarely line up a rotation: test_unrolled_rotation has one.)
+    (2, 2, {"head_on", "tie", "chain", "stay"}), (2, 3, {"head_on", "tie", "chain", "stay"}),
+    (2, 4, {"head_on", "stay"}), (3, 4, {"head_on", "tie", "chain", "stay"}),
+]
+"""(grid side, agents, the conflict kinds their crowds must show)."""
+
+
+@pytest.mark.parametrize("side, agents, kinds, tie_order",
+                         [(*crowd_, "set") for crowd_ in CROWDS]
+                         # insertion order: one array-form and two unrolled sizes (each size is its own program)
+                         + [(*crowd_, "insertion") for crowd_ in CROWDS if crowd_[1] in (3, 4, 12)])
+def test_resolve_matches_networkx(side, agents, kinds, tie_order):
     rng = np.random.default_rng(side * 100 + agents)
     starts, targets = crowd(rng, side, agents, 300)
-    ours = np.asarray(RESOLVE(starts, targets))
-    seen = set()
+    ours = np.asarray(resolver(side, tie_order)(starts, targets))
+    other_order = "insertion" if tie_order == "set" else "set"
+    seen, orders_differ = set(), 0
     for case in range(len(starts)):
-        expected, kinds = reference(starts[case], targets[case], side)
-        seen |= kinds
+        expected, case_kinds = reference(starts[case], targets[case], side, tie_order)
+        orders_differ += expected != reference(starts[case], targets[case], side, other_order)[0]
+        seen |= case_kinds
         assert ours[case].tolist() == expected, f"case {case}: starts {starts[case]}, targets {targets[case]}"
     assert kinds <= seen, seen
+    if side >= 3 and agents >= 4:  # (smaller crowds never hold a component networkx orders by a hash set)
+        assert orders_differ > 0  # the two tie orders really part on these crowds
+
+
+@pytest.mark.parametrize("tie_order", ["set", "insertion"])
+def test_unrolled_rotation(tie_order):
+    """Four agents rotating around a 2x2 block all move; one more queued behind the cycle (array form) waits."""
+    side = 3
+    cycle_starts, cycle_targets = [0, 1, 4, 3], [1, 4, 3, 0]  # (0,0) -> (1,0) -> (1,1) -> (0,1) -> (0,0)
+    ours = np.asarray(resolver(side, tie_order)(np.array([cycle_starts]), np.array([cycle_targets])))[0]
+    assert ours.tolist() == [True] * 4 == reference(cycle_starts, cycle_targets, side, tie_order)[0]
+    starts, targets = [*cycle_starts, 6], [*cycle_targets, 3]  # (0,2) drives into the cycle's (0,1)
+    ours = np.asarray(resolver(side, tie_order)(np.array([starts]), np.array([targets])))[0]
+    assert ours.tolist() == [True] * 4 + [False] == reference(starts, targets, side, tie_order)[0]
+
+
+def test_unrolled_set_order_ties():
+    """Up to 4 agents (the unrolled graph) the set-order ties are rare in crowds: 1,500 crowds of 4 to find some."""
+    side, agents = 4, 4
+    starts, targets = crowd(np.random.default_rng(44), side, agents, 1500)
+    ours = np.asarray(resolver(side, "set")(starts, targets))
+    orders_differ = 0
+    for case in range(len(starts)):
+        expected = reference(starts[case], targets[case], side, "set")[0]
+        orders_differ += expected != reference(starts[case], targets[case], side, "insertion")[0]
+        assert ours[case].tolist() == expected, f"case {case}: starts {starts[case]}, targets {targets[case]}"
+    assert orders_differ >= 5, orders_differ

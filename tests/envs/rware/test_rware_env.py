@@ -80,10 +80,18 @@ def test_sizes_and_layouts():
     (lambda: make_rware(2, observation_type="pixels"), "observation_type"),
     (lambda: make_rware(2, max_steps=-1), "max_steps"),
     (lambda: make_rware(2, sensor_range=-1), "sensor_range"),
+    (lambda: wrl_jax.make("rware-tiny-4ag-v2", tie_order="lowest-id"), "tie_order"),
 ])
 def test_bad_input_is_a_clear_value_error(call, message):
     with pytest.raises(ValueError, match=message):
         call()
+
+
+def test_tie_order_is_static_and_defaults_to_rwares_own():
+    exact, _ = wrl_jax.make("rware-tiny-4ag-v2")
+    inserted, _ = wrl_jax.make("rware-tiny-4ag-v2", tie_order="insertion")
+    assert exact.tie_order == "set" and inserted.tie_order == "insertion"
+    assert exact.static_config() != inserted.static_config()  # two programs, never one cache entry
 
 
 def test_bad_actions_and_warehouses():

@@ -5,8 +5,10 @@ with the same actions from random, forward-biased and crowding policies (agents 
 requested shelves to the goals, so chains and ties at the goals are frequent), ours replaying
 rware's replacement draws. Every step must agree on the observations, rewards, done, the
 request queue, every agent (cell, heading, load, delivery flag, message) and every shelf.
-rware runs with ``networkx`` keeping insertion order in ``subgraph`` (the tie rule implemented;
-``rware_oracle.insertion_order``).
+rware runs unpatched: ties between equal chains follow networkx's real node order, CPython's
+hash-set order in small components, which our default ``tie_order="set"`` emulates (the runs count
+such ties, ``set_order_tie``); ``tie_order="insertion"`` is checked against rware with networkx
+keeping insertion order in ``subgraph`` (``rware_oracle.insertion_order``).
 
 Knobs: ``WRL_RWARE_PARITY_STEPS`` (steps per configuration, default 30), and
 ``WRL_RWARE_PARITY_ALL=1`` for every size x 2..19 agents (by default each agent count 2..19 runs
@@ -47,18 +49,19 @@ def registered_configs() -> list[str]:
 
 
 def run_parity(warehouse, steps: int, seed: int, policies=("random", "biased", "crowding"),
-               check_resets: bool = False) -> dict:
+               check_resets: bool = False, tie_order: str = "set") -> dict:
     """Step rware and ours side by side for ``steps`` steps (resetting rware when done); the counts seen.
 
     ``check_resets``: also compare the observations after each reset (one more program to compile).
+    ``tie_order``: ours, and rware unpatched (``"set"``) or keeping insertion order (``"insertion"``).
     """
     rng = np.random.default_rng(seed)
     layout = (np.asarray(warehouse.highways, bool), np.asarray(warehouse.goals))
-    counts = {"transitions": 0, "episodes": 1, "deliveries": 0, "tie": 0, "head_on": 0, "rotation": 0,
-              "mismatches": []}
-    with oracle.insertion_order():
+    counts = {"transitions": 0, "episodes": 1, "deliveries": 0, "tie": 0, "set_order_tie": 0, "head_on": 0,
+              "rotation": 0, "mismatches": []}
+    with oracle.tie_rule(tie_order):
         obs, _ = warehouse.reset(seed=seed)
-        env, state, params = oracle.ours(warehouse)
+        env, state, params = oracle.ours(warehouse, tie_order)
         if check_resets:
             np.testing.assert_array_equal(np.asarray(oracle.OBSERVE(env, state, params)), np.stack(obs))
         recorder = oracle.record_draws(warehouse)
@@ -162,3 +165,13 @@ def test_parity_covered_the_conflicts():
         with open(os.environ["WRL_RWARE_PARITY_REPORT"], "w") as report:
             json.dump({"steps_per_config": STEPS, **TOTALS}, report, indent=1)
     assert TOTALS["tie"] > 0 and TOTALS["head_on"] > 0 and TOTALS["deliveries"] > 0, TOTALS
+    assert TOTALS["set_order_tie"] > 0, TOTALS  # ties that unpatched networkx orders by a hash set
+
+
+@pytest.mark.parametrize("name", ["rware-small-12ag-hard-v2"])
+def test_insertion_tie_order_parity(name):
+    """``tie_order="insertion"`` against rware with networkx keeping insertion order (many crowded ties)."""
+    warehouse = gym.make(name, disable_env_checker=True).unwrapped
+    counts = run_parity(warehouse, max(STEPS, 200), seed=5, policies=("crowding",), tie_order="insertion")
+    assert_parity(counts)
+    assert counts["tie"] > 0, counts

@@ -33,8 +33,7 @@ class Pair:
         """One step of both (``Action`` members or ints, one per agent); ours: ``(reward, done, obs)``."""
         codes = [a.value if isinstance(a, Action) else a for a in actions]
         self.recorder.draws.clear()
-        with oracle.insertion_order():
-            obs, rewards, done, _, _ = self.warehouse.step(codes)
+        obs, rewards, done, _, _ = self.warehouse.step(codes)
         our_obs, self.state, reward, terminated, truncated, _ = oracle.step(
             self.env, self.state, self.params, np.asarray(codes), self.recorder.draws)
         bad = oracle.mismatches(self.warehouse, (obs, rewards, done), self.state,

@@ -12,11 +12,16 @@ into weakly connected components and commits, per component:
 
 Each cell holds at most one agent, so every node has at most one out-edge: the graph is a
 partial function ``next`` on agents, and everything above follows from walking it ``N``
-times (one ``lax.scan``, no loop over agents in Python). Tie-breaking follows the order in
-which rware inserts nodes (agent ``i``'s cell at ``2i``, its target at ``2i + 1``, a cell
-keeping its first rank): what ``networkx`` gives when ``subgraph`` keeps that order.
-Unpatched ``networkx`` may iterate some components in hash-set order instead (NOTES.md 9.1),
-which this module does not emulate.
+times (one ``lax.scan``, no loop over agents in Python).
+
+Ties (two equally long chains into one cell) go to the predecessor that comes first in the
+component copy's node order. ``tie_order="set"`` (the default) is the order unpatched rware
+really iterates: the graph's insertion order (agent ``i``'s cell at ``2i``, its target at
+``2i + 1``, a cell keeping its first rank) for a component holding at least half the graph's
+nodes, CPython's hash-set order for a smaller one (:mod:`~wrl_jax.envs.rware.set_order`,
+emulated only on steps where some environment of the batch has such a tie).
+``tie_order="insertion"`` uses insertion order everywhere: what ``networkx`` gives when
+``subgraph`` keeps that order.
 """
 
 from __future__ import annotations
@@ -26,6 +31,8 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from wrl_jax.core.environment import only_where
+from wrl_jax.envs.rware.set_order import component_rank, first_precedes_in_triple, probe_table
 from wrl_jax.envs.rware.types import DOWN, FORWARD, LEFT_DIR, RIGHT_DIR, UP
 
 
@@ -55,15 +62,45 @@ def cancelled_moves(moving: jax.Array, loaded: jax.Array, shelf_there: jax.Array
 UNROLL_LIMIT = 4
 """Up to this many agents the graph is written out agent by agent (:func:`_resolve_unrolled`)."""
 
+TIE_ORDERS = ("set", "insertion")
+"""How ties between equal chains are ordered (module docstring): rware's real order, or insertion order."""
 
-def resolve_moves(start: jax.Array, target: jax.Array) -> jax.Array:
+
+def check_tie_order(tie_order: str) -> str:
+    if tie_order not in TIE_ORDERS:
+        raise ValueError(f"tie_order must be one of {TIE_ORDERS} ('set': unpatched rware's node order, "
+                         f"'insertion': the graph's insertion order), got {tie_order!r}")
+    return tie_order
+
+
+def _tie_rank(start: jax.Array, target: jax.Array, width: int, tied: jax.Array, insertion: jax.Array) -> jax.Array:
+    """Each agent's start cell's place in its component's node order, as unpatched networkx iterates it.
+
+    ``tied`` (N,) marks the agents whose rank decides something (an equally deep rival for the same
+    cell); the emulation runs in a batched ``while`` only while some environment has one, else
+    ``insertion`` (the insertion rank) is kept as it is. Only ranks within one component are compared.
+    """
+    count = start.shape[0]
+
+    def emulate(data: jax.Array) -> jax.Array:  # reads its inputs from the loop's carry: XLA cannot hoist it
+        cells = data.astype(jnp.int32)
+        return component_rank(cells[:count], cells[count:2 * count], width, needed=cells[2 * count:] > 0)
+
+    inputs = jnp.concatenate([start, target, tied.astype(jnp.int32)]).astype(jnp.uint32)
+    return only_where(jnp.any(tied), emulate, inputs, insertion.astype(jnp.int32))
+
+
+def resolve_moves(start: jax.Array, target: jax.Array, *, grid_size: tuple[int, int], tie_order: str) -> jax.Array:
     """The committed agents ``(N,)`` bool of rware's graph, from flat start and target cells ``(N,)`` int32.
 
     Cancelled and stationary agents must come with ``target == start`` (their self-loop). A
     committed agent moves to its target; an uncommitted one (only ever a mover) stays.
+    ``grid_size`` is ``(H, W)``: cells are ``y W + x``, and ``tie_order="set"`` hashes ``(x, y)``.
     """
+    check_tie_order(tie_order)
+    height, width = (int(v) for v in grid_size)
     if start.shape[0] <= UNROLL_LIMIT:
-        return _resolve_unrolled(start, target)
+        return _resolve_unrolled(start, target, (height, width), tie_order)
     count = start.shape[0]
     agents = jnp.arange(count, dtype=jnp.int32)
     sink = count  # the empty cell a chain ends in (one index for all: chains are told apart by target)
@@ -86,8 +123,18 @@ def resolve_moves(start: jax.Array, target: jax.Array) -> jax.Array:
     depth = jnp.max(jnp.where(visits, steps, 0), axis=(0, 1))
     # rware's node order: agent i's cell is inserted at 2i unless an earlier agent's target put it at 2k+1.
     rank = jnp.minimum(2 * agents, jnp.min(jnp.where(onto, 2 * agents[:, None] + 1, 2 * count + 2), axis=0))
-    key = depth * (2 * count + 3) - rank  # longer chain first, then earlier in insertion order
     rivals = (target[:, None] == target[None, :]) & in_tree[None, :]  # [i, j]: tree agents sharing i's target
+    if tie_order == "set":  # only a tie in a component small enough for networkx to iterate a set needs it
+        equal = rivals & (depth[None, :] == depth[:, None]) & (agents[None, :] != agents[:, None])
+        last = jnp.take_along_axis(walk, jnp.sum(walk < sink, axis=0, keepdims=True) - 1, axis=0)[0]
+        end = target[last]  # the empty cell the agent's chain ends in (trees only)
+        cells = jnp.sum(in_tree[None, :] & (end[None, :] == end[:, None]), axis=1) + 1  # its component's nodes
+        empty = successor == sink
+        earlier = agents[None, :] < agents[:, None]
+        fresh = empty & ~jnp.any(earlier & (target[None, :] == target[:, None]), axis=1)
+        small = 2 * cells < count + jnp.sum(fresh)  # FilterAtlas: 2 * len(c) < len(G)
+        rank = _tie_rank(start, target, width, in_tree & small & jnp.any(equal, axis=1), rank)
+    key = depth * (2 * count + 3) - rank  # longer chain first, then earlier in the component's node order
     best = key >= jnp.max(jnp.where(rivals, key[None, :], jnp.iinfo(jnp.int32).min), axis=1)
     chosen = in_tree & best
     # On the longest path: every agent from here to the sink was chosen.
@@ -95,7 +142,7 @@ def resolve_moves(start: jax.Array, target: jax.Array) -> jax.Array:
     return (on_cycle & ~head_on) | on_longest
 
 
-def _resolve_unrolled(start: jax.Array, target: jax.Array) -> jax.Array:
+def _resolve_unrolled(start: jax.Array, target: jax.Array, grid_size: tuple[int, int], tie_order: str) -> jax.Array:
     """:func:`resolve_moves` for a few agents, as scalars: every ``[i, j]`` term its own elementwise op.
 
     Why: under ``vmap`` each scalar is a batch-long vector, so the whole graph fuses into elementwise
@@ -131,12 +178,14 @@ def _resolve_unrolled(start: jax.Array, target: jax.Array) -> jax.Array:
         for i in agents:
             for j in agents:
                 depth[j] = jnp.where(paths[k][i] == j, jnp.maximum(depth[j], k), depth[j])
-    key = []
+    rank = []
     for i in agents:
-        rank = jnp.int32(2 * i)
+        rank.append(jnp.int32(2 * i))
         for k in agents:
-            rank = jnp.where(onto[k][i], jnp.minimum(rank, 2 * k + 1), rank)
-        key.append(depth[i] * (2 * count + 3) - rank)
+            rank[i] = jnp.where(onto[k][i], jnp.minimum(rank[i], 2 * k + 1), rank[i])
+    if tie_order == "set":
+        rank = _small_pair_ranks(cell, goal, successor, depth, rank, grid_size)
+    key = [depth[i] * (2 * count + 3) - rank[i] for i in agents]
     chosen = []
     for i in agents:
         best = jnp.bool_(True)
@@ -150,3 +199,40 @@ def _resolve_unrolled(start: jax.Array, target: jax.Array) -> jax.Array:
         blocked = functools.reduce(jnp.logical_or, [(paths[k][i] == j) & ~chosen[j] for k in agents for j in agents])
         committed.append((on_cycle & ~head_on) | (in_tree[i] & ~blocked))
     return jnp.stack(committed)
+
+
+def _small_pair_ranks(cell: list, goal: list, successor: list, depth: list, rank: list,
+                      grid_size: tuple[int, int]) -> list:
+    """:func:`_resolve_unrolled`'s ranks with unpatched networkx's order where it differs (up to 4 agents).
+
+    A component networkx iterates as a hash set has ``2 * len(c) < len(G) <= 2 N``: up to 4 agents,
+    a tie there is two agents ``i < j`` with nobody behind them driving into one empty cell, while
+    the others reach at least two more empty cells (``len(G) >= 7``). Whichever of the two comes
+    later in the set's order (:func:`~wrl_jax.envs.rware.set_order.first_precedes_in_triple`) is
+    given the last rank, so the other wins; elementwise, as the rest of the unrolled graph.
+    """
+    count, sink = len(cell), len(cell)
+    if 2 * count < 7:  # len(G) <= 2 N: with 3 agents or fewer networkx always keeps insertion order
+        return list(rank)
+    empty = [successor[i] == sink for i in range(count)]  # heads for a cell no agent stands on
+    fresh = [empty[i] & functools.reduce(jnp.logical_and, [goal[j] != goal[i] for j in range(i)], jnp.bool_(True))
+             for i in range(count)]
+    nodes = count + sum(f.astype(jnp.int32) for f in fresh)  # len(G): the agents' cells and the empty targets
+    pairs = [(i, j) for i in range(count) for j in range(i + 1, count)]
+    found = [empty[i] & (goal[i] == goal[j]) & (depth[i] == 0) & (depth[j] == 0) & (2 * 3 < nodes) for i, j in pairs]
+    # At most one such pair: the three cells are picked by sums, the set emulated only when some env has one.
+    pick = [sum(jnp.where(hit, values[i], 0) for hit, (i, _) in zip(found, pairs)) for values in (cell, goal)]
+    later = sum(jnp.where(hit, cell[j], 0) for hit, (_, j) in zip(found, pairs))
+
+    probes = jnp.asarray(probe_table(*grid_size))  # each cell's probe sequence, from Python's own hash
+
+    def order(data: jax.Array) -> jax.Array:  # reads the cells from the loop's carry: XLA cannot hoist it
+        return first_precedes_in_triple(*probes[data.astype(jnp.int32)])
+
+    i_first = only_where(functools.reduce(jnp.logical_or, found), order,
+                         jnp.stack([pick[0], pick[1], later]).astype(jnp.uint32), jnp.bool_(True))
+    rank = list(rank)
+    for hit, (i, j) in zip(found, pairs):
+        rank[i] = jnp.where(hit & ~i_first, 2 * count + 2, rank[i])
+        rank[j] = jnp.where(hit & i_first, 2 * count + 2, rank[j])
+    return rank

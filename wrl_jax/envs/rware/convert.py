@@ -109,10 +109,13 @@ def from_rware(warehouse: Any) -> tuple[RwareState, RwareParams]:
     return state, params
 
 
-def env_from_rware(warehouse: Any) -> Rware:
-    """The :class:`Rware` environment with the warehouse's static settings; its default params are from_rware's."""
+def env_from_rware(warehouse: Any, tie_order: str = "set") -> Rware:
+    """The :class:`Rware` environment with the warehouse's static settings; its default params are from_rware's.
+
+    ``tie_order`` is ours, not the warehouse's (:mod:`wrl_jax.envs.rware.conflicts`): ``"set"`` matches rware as it runs.
+    """
     inner = _warehouse(warehouse)
     _, params = from_rware(inner)
     return Rware(params, len(inner.agents), len(inner.request_queue), sensor_range=inner.sensor_range,
                  msg_bits=inner.msg_bits, normalised_coordinates=inner.normalised_coordinates,
-                 name="rware-from-warehouse", **observation_settings(inner))
+                 tie_order=tie_order, name="rware-from-warehouse", **observation_settings(inner))

@@ -151,7 +151,7 @@ def rware_reset(cells: jax.Array, headings: jax.Array, queue: jax.Array, params:
         time=jnp.zeros((), jnp.int32), inactive=jnp.zeros((), jnp.int32))
 
 
-def _apply_actions(state: RwareState, action: jax.Array, params: RwareParams):
+def _apply_actions(state: RwareState, action: jax.Array, params: RwareParams, tie_order: str):
     """Steps 2-5: the graph's verdict, then moves, turns, pick-ups and drops. Returns ``(state, reward, moved)``."""
     height, width = params.grid_size
     count, num_shelves = state.agent_x.shape[0], state.shelf_x.shape[0]
@@ -165,7 +165,8 @@ def _apply_actions(state: RwareState, action: jax.Array, params: RwareParams):
     occupant = ids_at(there, here, 2 * jnp.arange(1, count + 1, dtype=jnp.int32) + loaded)
     cancelled = cancelled_moves(here != there, loaded, shelves[:count] > 0, (occupant & 1) > 0)
     tx, ty = jnp.where(cancelled, x, tx), jnp.where(cancelled, y, ty)
-    committed = resolve_moves(here, jnp.where(cancelled, here, there))
+    committed = resolve_moves(here, jnp.where(cancelled, here, there), grid_size=(height, width),
+                              tie_order=tie_order)
     forward = committed & (action == FORWARD) & ~cancelled
     new_x, new_y = jnp.where(forward, tx, x), jnp.where(forward, ty, y)
 
@@ -296,19 +297,20 @@ def _deliver(state: RwareState, reward: jax.Array, replacements: jax.Array, para
 
 
 def rware_transition(state: RwareState, action: jax.Array, replacements: jax.Array, params: RwareParams,
-                     message: jax.Array | None = None):
+                     message: jax.Array | None = None, tie_order: str = "set"):
     """One rware step, deterministic in ``replacements`` ``(G,)`` int32 (module docstring).
 
     ``action`` is ``(N,)`` int32 (rware's ``Action`` values; anything else acts as ``NOOP``),
     ``message`` ``(N, M)`` the agents' new messages (kept as they are when ``None``). Returns
     ``(next_state, reward (N,) float32, done (), info)``; ``done`` is rware's single flag (time
     or inactivity limit), ``info`` holds ``delivered (N,)`` (the agent on each paying goal),
-    ``moved (N,)``, ``time_limit ()`` and ``inactivity_limit ()``.
+    ``moved (N,)``, ``time_limit ()`` and ``inactivity_limit ()``. ``tie_order``: how equal chains are
+    ordered (:mod:`~wrl_jax.envs.rware.conflicts`; ``"set"`` is unpatched rware's order).
     """
     action = jnp.asarray(action, jnp.int32)
     if message is not None:
         state = state.replace(message=jnp.asarray(message, jnp.float32))
-    state, reward, moved = _apply_actions(state, action, params)
+    state, reward, moved = _apply_actions(state, action, params, tie_order)
     state, reward, delivered, any_delivery = _deliver(state, reward, replacements, params)
     inactive = jnp.where(any_delivery, 0, state.inactive + 1).astype(jnp.int32)
     time = state.time + 1

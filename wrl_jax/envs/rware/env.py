@@ -30,6 +30,7 @@ from wrl_jax.core.environment import Environment, only_where
 from wrl_jax.core.gymnax_base import spaces
 from wrl_jax.core.random import split_key
 from wrl_jax.core.spaces import MultiDiscrete, TreeDict
+from wrl_jax.envs.rware.conflicts import check_tie_order
 from wrl_jax.envs.rware.dynamics import draw_replacements, draw_reset, rware_reset, rware_transition
 from wrl_jax.envs.rware.observation import (
     DEFAULT_IMAGE_LAYERS,
@@ -50,8 +51,9 @@ class Rware(Environment[RwareState, RwareParams]):
     Static configuration: the grid, shelf and goal counts (from ``params``), ``num_agents``,
     ``queue_size`` (rware's ``request_queue_size``), ``sensor_range``, ``msg_bits``,
     ``normalised_coordinates``, ``observation_type`` (``"flattened"``, ``"dict"``, ``"image"``,
-    ``"image_dict"``) and, for the image types, ``image_observation_layers`` (names) and
-    ``image_observation_directional``. ``info`` holds ``delivered`` (per agent: it stood on a goal
+    ``"image_dict"``), for the image types ``image_observation_layers`` (names) and
+    ``image_observation_directional``, and ``tie_order`` (``"set"``: ties between equal chains as
+    unpatched rware orders them; ``"insertion"``: the graph's insertion order). ``info`` holds ``delivered`` (per agent: it stood on a goal
     that paid), ``moved``, ``time_limit`` and ``inactivity_limit``.
     """
 
@@ -61,7 +63,7 @@ class Rware(Environment[RwareState, RwareParams]):
     def __init__(self, params: RwareParams, num_agents: int, queue_size: int, *, sensor_range: int = 1,
                  msg_bits: int = 0, normalised_coordinates: bool = False, observation_type: Any = "flattened",
                  image_observation_layers: Any = DEFAULT_IMAGE_LAYERS, image_observation_directional: bool = True,
-                 name: str = "rware"):
+                 tie_order: str = "set", name: str = "rware"):
         self.height, self.width = (int(v) for v in params.highway.shape)
         self.num_shelves = int(params.shelf_home.shape[0])
         self.num_goals = int(params.goals.shape[0])
@@ -74,6 +76,7 @@ class Rware(Environment[RwareState, RwareParams]):
         image = self.observation_type in ("image", "image_dict")
         self.image_observation_layers = image_layer_names(image_observation_layers, needed=image)
         self.image_observation_directional = directional_flag(image_observation_directional)
+        self.tie_order = check_tie_order(tie_order)
         self._name = name
         super().__init__(params)
 
@@ -81,6 +84,8 @@ class Rware(Environment[RwareState, RwareParams]):
         """The shapes and switches of the programs; not the name, so ids of one shape share their programs."""
         base = (self.height, self.width, self.num_shelves, self.num_goals, self.num_agents, self.queue_size,
                 self.sensor_range, self.msg_bits, self.normalised_coordinates)
+        if self.tie_order != "set":
+            base = (*base, self.tie_order)
         if self.observation_type == "flattened":
             return base
         if self.observation_type == "dict":
@@ -156,7 +161,7 @@ class Rware(Environment[RwareState, RwareParams]):
         if self.msg_bits:
             action, message = action[:, 0], action[:, 1:].astype(jnp.float32)
         replacements = jnp.asarray(replacements, jnp.int32)
-        state, reward, done, info = rware_transition(state, action, replacements, params, message)
+        state, reward, done, info = rware_transition(state, action, replacements, params, message, self.tie_order)
         obs = self._observe(state, params)
         info = {**info, "final_global_state": self.flat_obs(obs).reshape(-1)}
         return obs, state, reward, jnp.zeros((), bool), done, info

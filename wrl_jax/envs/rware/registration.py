@@ -13,6 +13,7 @@ import itertools
 import jax.numpy as jnp
 import numpy as np
 
+from wrl_jax.envs.rware.conflicts import check_tie_order
 from wrl_jax.envs.rware.env import Rware
 from wrl_jax.envs.rware.layout import RwareLayout, layout_from_params, parse_layout
 from wrl_jax.envs.rware.observation import OBSERVATION_TYPES as OBSERVATION_TYPES  # rware's types, by name
@@ -89,7 +90,7 @@ def make_rware(num_agents: int = 4, *, shelf_columns: int = 3, column_height: in
                max_steps: int | None = 500, reward_type: object = "individual",
                observation_type: object = "flattened", normalised_coordinates: bool = False,
                image_observation_layers: object = DEFAULT_IMAGE_LAYERS, image_observation_directional: bool = True,
-               name: str | None = None) -> tuple[Rware, RwareParams]:
+               tie_order: str = "set", name: str | None = None) -> tuple[Rware, RwareParams]:
     """``(env, params)`` for any rware warehouse, with rware's argument names and defaults.
 
     ``layout`` (a custom layout string or :class:`RwareLayout`) replaces ``shelf_columns``,
@@ -101,6 +102,9 @@ def make_rware(num_agents: int = 4, *, shelf_columns: int = 3, column_height: in
     rware's ``ObservationType``); the image types read ``image_observation_layers`` (rware's
     ``ImageLayer`` names or members, :data:`IMAGE_LAYERS`) and ``image_observation_directional``
     (see :mod:`wrl_jax.envs.rware.observation_image`), which the others ignore, as rware does.
+    ``tie_order`` (not rware's: ours): ``"set"`` (default) breaks ties between equal chains as unpatched
+    rware does (CPython's hash-set order where networkx iterates one), ``"insertion"`` by the graph's
+    insertion order everywhere (:mod:`wrl_jax.envs.rware.conflicts`).
 
     Example:
         >>> env, params = make_rware(2, layout="x.x\\n...\\n.g.", request_queue_size=1)
@@ -111,6 +115,7 @@ def make_rware(num_agents: int = 4, *, shelf_columns: int = 3, column_height: in
     image_observation_layers = image_layer_names(image_observation_layers,
                                                  needed=observation_type in ("image", "image_dict"))
     image_observation_directional = directional_flag(image_observation_directional)
+    check_tie_order(tie_order)
     if layout is None or (isinstance(layout, str) and not layout):  # rware: `if not layout`
         layout = layout_from_params(shelf_columns, shelf_rows, column_height)
     elif isinstance(layout, str):
@@ -137,7 +142,8 @@ def make_rware(num_agents: int = 4, *, shelf_columns: int = 3, column_height: in
     env = Rware(params, num_agents, request_queue_size, sensor_range=sensor_range, msg_bits=msg_bits,
                 normalised_coordinates=normalised_coordinates, observation_type=observation_type,
                 image_observation_layers=image_observation_layers,
-                image_observation_directional=image_observation_directional, name=name or "rware-custom")
+                image_observation_directional=image_observation_directional, tie_order=tie_order,
+                name=name or "rware-custom")
     return env, params
 
 
@@ -149,8 +155,8 @@ def make_named(size: str, agents: int, difficulty: str = "", **overrides) -> tup
 
     Overrides are :func:`make_rware`'s other arguments (``reward_type``, ``max_steps``,
     ``max_inactivity_steps``, ``sensor_range``, ``msg_bits``, ``normalised_coordinates``,
-    ``observation_type``, ``image_observation_layers``, ``image_observation_directional``); the
-    layout, agent count and queue size are fixed by the id.
+    ``observation_type``, ``image_observation_layers``, ``image_observation_directional``, and our
+    ``tie_order``); the layout, agent count and queue size are fixed by the id.
     """
     num_agents = agents
     if size not in SIZES:
@@ -163,7 +169,7 @@ def make_named(size: str, agents: int, difficulty: str = "", **overrides) -> tup
                          f"use wrl_jax.envs.rware.make_rware for other values")
     known = {"reward_type", "max_steps", "max_inactivity_steps", "sensor_range", "msg_bits",
              "normalised_coordinates", "observation_type", "image_observation_layers",
-             "image_observation_directional", "name"}
+             "image_observation_directional", "tie_order", "name"}
     unknown = sorted(set(overrides) - known)
     if unknown:
         raise ValueError(f"unknown rware override(s) {unknown}; known: {', '.join(sorted(known))}")
