@@ -14,6 +14,8 @@ and queue, behind ``AutoResetWrapper``, timed as ours, in a child process of tha
 warehouse is not rware's rules (agents move one after another, an episode ends on a collision, rewards are
 shared): a speed reference only.
 
+Ours is the default ``tie_order="set"`` (ties between equal chains in unpatched rware's order); the same
+batch is also timed with ``tie_order="insertion"``, alternated, to say what the exact order costs.
 ``--profile`` times variants of our step with one part left out, at one batch size, to say what bounds it. Results: ``--out``/throughput.json and throughput.md; every ratio is from the same run.
 """
 
@@ -101,6 +103,21 @@ def draws(key, steps: int, batch: int, agents: int):
 def state_bytes(env, batch: int) -> int:
     per_env = 4 * (env.num_agents * (6 + env.obs_size) + 2 * env.num_shelves + env.queue_size + 2)
     return 4 * batch * per_env  # state, observation, and the copies a step's selects make
+
+
+def bench_tie_orders(name: str, batch: int, repeats: int) -> dict:
+    """Our default ``tie_order="set"`` (unpatched rware's order) against ``"insertion"``, alternated, same batch."""
+    import wrl_jax
+
+    speeds = {"set": [], "insertion": []}
+    for _ in range(2):
+        for order in speeds:
+            env, params = wrl_jax.make(name, tie_order=order)
+            speeds[order].append(time_scan(ours_scan(env, params), batch, env.num_agents, repeats)["agent_steps_per_s"])
+    best = {order: max(values) for order, values in speeds.items()}
+    print(f"  ours {name} B={batch}: tie_order set {best['set']:,.0f}, insertion {best['insertion']:,.0f} "
+          f"agent-steps/s", flush=True)
+    return {"batch": batch, "agent_steps_per_s": best, "set_over_insertion": best["set"] / best["insertion"]}
 
 
 def bench_ours(name: str, batches: list[int], repeats: int) -> list[dict]:
@@ -210,7 +227,7 @@ def profile(name: str, batch: int, repeats: int) -> dict:
     def without(part: str):
         saved = dynamics.resolve_moves, dynamics._deliver
         if part == "no_conflicts":
-            dynamics.resolve_moves = lambda start, target: jnp.ones(start.shape, bool)
+            dynamics.resolve_moves = lambda start, target, **_: jnp.ones(start.shape, bool)
         if part == "no_deliveries":
             dynamics._deliver = lambda state, reward, *rest: (state, reward, jnp.zeros(n, bool), jnp.zeros((), bool))
         try:
@@ -293,6 +310,13 @@ def markdown(report: dict) -> str:
         if isinstance(entry["jumanji"], dict):
             lines += ["", f"Jumanji {entry['jumanji']['jumanji']} RobotWarehouse, layout of {name}: " + ", ".join(
                 f"B={r['batch']} {r['agent_steps_per_s']:,.0f}" for r in entry["jumanji"]["rows"])]
+    for name, entry in report["ids"].items():
+        ties = entry.get("tie_orders")
+        if ties:
+            speed = ties["agent_steps_per_s"]
+            lines += ["", (f"Tie order, {name} at B={ties['batch']}: the default `set` (unpatched rware's order) "
+                           f"{speed['set']:,.0f} agent-steps/s, `insertion` {speed['insertion']:,.0f}: "
+                           f"{ties['set_over_insertion']:.2f}x.")]
     prof = report.get("profile")
     if prof:
         step = prof["us_per_env_step"]["step"]
@@ -334,7 +358,8 @@ def main() -> None:
               "jax": jax.__version__, "ids": {}}
     for name in args.ids:
         print(name, flush=True)
-        entry = {"ours": bench_ours(name, args.batch_sizes, args.repeats), "rware": bench_rware(name, args.seconds)}
+        entry = {"ours": bench_ours(name, args.batch_sizes, args.repeats), "rware": bench_rware(name, args.seconds),
+                 "tie_orders": bench_tie_orders(name, args.profile_batch, args.repeats)}
         print(f"  rware {name}: {entry['rware']['agent_steps_per_s']:,.0f} agent-steps/s", flush=True)
         entry["jumanji"] = bench_jumanji(args.jumanji_python, name, args.batch_sizes, args.repeats)
         print(f"  jumanji {name}: {entry['jumanji'] if isinstance(entry['jumanji'], str) else 'done'}", flush=True)

@@ -1,9 +1,10 @@
 """How often the JAX RWARE and *unpatched* rware 2.0.0 part ways, because of chain-tie order alone.
 
 rware breaks ties between equally long chains into one cell by networkx's node iteration order,
-which for some components is CPython hash-set order (bench/results/rware/NOTES.md 9.1);
-wrl_jax.envs.rware uses the graph's insertion order, what networkx does when ``subgraph`` keeps
-it (the parity tests patch it so). This runs episodes of plain rware, unpatched, with a random
+which for some components is CPython hash-set order (bench/results/rware/NOTES.md 9.1).
+wrl_jax.envs.rware's default ``tie_order="set"`` emulates it (expect no split); ``--tie-order
+insertion`` measures the graph's insertion order instead, what networkx does when ``subgraph`` keeps
+it. This runs episodes of plain rware, unpatched, with a random
 policy, steps ours from the same state with the same actions and rware's own replacement draws,
 and counts the episodes in which the two ever differ (first differing step, and the steps
 holding a tie). Each episode starts from rware's seeded reset, converted by ``from_rware``.
@@ -97,6 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run", type=Path, help="act with this trained run's policy (seed 0) instead")
     parser.add_argument("--greedy", action="store_true", help="with --run: the policy's argmax, not a draw")
     parser.add_argument("--json", type=Path, help="also write the counts here")
+    parser.add_argument("--tie-order", default="set", choices=["set", "insertion"], help="ours (rware is unpatched)")
     args = parser.parse_args(argv)
 
     import gymnasium as gym
@@ -108,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     from wrl_jax.envs.rware import from_rware, rware_arrays, state_arrays
 
     warehouse = gym.make(args.env, disable_env_checker=True).unwrapped
-    env, _ = wrl_jax.make(args.env)
+    env, _ = wrl_jax.make(args.env, tie_order=args.tie_order)
     step = jax.jit(type(env).transition_with, static_argnums=0)
     env = env.without_default_params()
     has_tie = tie_steps_holder()
@@ -162,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     differing = sum(e["first_difference"] is not None for e in episodes)
     acting = ("uniform random" if args.forward == 0.2 and args.run is None else f"P(FORWARD) {args.forward}"
               if args.run is None else f"{'greedy' if args.greedy else 'sampled'} policy of {args.run}")
-    summary = {"env": args.env, "episodes": args.episodes, "steps": args.steps, "actions": acting,
+    summary = {"env": args.env, "tie_order": args.tie_order, "episodes": args.episodes, "steps": args.steps, "actions": acting,
                "p_forward": args.forward,
                "differing_episodes": differing, "per_episode": episodes}
     print(f"{differing} of {args.episodes} episodes of {args.env} differ from unpatched rware")
