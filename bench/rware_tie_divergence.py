@@ -164,7 +164,8 @@ def main(argv: list[str] | None = None) -> int:
     differing = sum(e["first_difference"] is not None for e in episodes)
     acting = ("uniform random" if args.forward == 0.2 and args.run is None else f"P(FORWARD) {args.forward}"
               if args.run is None else f"{'greedy' if args.greedy else 'sampled'} policy of {args.run}")
-    summary = {"env": args.env, "tie_order": args.tie_order, "episodes": args.episodes, "steps": args.steps, "actions": acting,
+    summary = {"env": args.env, "tie_order": args.tie_order, "episodes": args.episodes, "steps": args.steps,
+               "actions": acting,
                "p_forward": args.forward,
                "differing_episodes": differing, "per_episode": episodes}
     print(f"{differing} of {args.episodes} episodes of {args.env} differ from unpatched rware")

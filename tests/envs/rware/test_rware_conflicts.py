@@ -23,14 +23,18 @@ nx = oracle.nx
 STEPS = ((0, -1), (0, 1), (-1, 0), (1, 0))
 
 
-def crowd(rng, side: int, agents: int, cases: int):
-    """``cases`` random crowds: distinct cells, random headings, 85% forward (clamped at the edges)."""
+def crowd(rng, side: int, agents: int, cases: int, height: int | None = None):
+    """``cases`` random crowds: distinct cells, random headings, 85% forward (clamped at the edges).
+
+    The grid is ``height`` x ``side`` (square by default); cells are ``y * side + x``.
+    """
+    height = side if height is None else height
     starts, targets = np.zeros((cases, agents), np.int32), np.zeros((cases, agents), np.int32)
     for case in range(cases):
-        cells = rng.choice(side * side, agents, replace=False)
+        cells = rng.choice(height * side, agents, replace=False)
         x, y = cells % side, cells // side
         move = np.array(STEPS)[rng.integers(0, 4, agents)] * (rng.random(agents) < 0.85)[:, None]
-        tx, ty = np.clip(x + move[:, 0], 0, side - 1), np.clip(y + move[:, 1], 0, side - 1)
+        tx, ty = np.clip(x + move[:, 0], 0, side - 1), np.clip(y + move[:, 1], 0, height - 1)
         starts[case], targets[case] = cells, ty * side + tx
     return starts, targets
 
@@ -70,8 +74,9 @@ def _tied(sub) -> bool:
     return False
 
 
-def resolver(side: int, tie_order: str):
-    return jax.jit(jax.vmap(functools.partial(resolve_moves, grid_size=(side, side), tie_order=tie_order)))
+def resolver(side: int, tie_order: str, height: int | None = None):
+    grid_size = (side if height is None else height, side)
+    return jax.jit(jax.vmap(functools.partial(resolve_moves, grid_size=grid_size, tie_order=tie_order)))
 
 
 ALL_KINDS = {"head_on", "rotation", "tie", "chain", "stay"}
@@ -120,11 +125,14 @@ def test_unrolled_rotation(tie_order):
     assert ours.tolist() == [True] * 4 + [False] == reference(starts, targets, side, tie_order)[0]
 
 
-def test_unrolled_set_order_ties():
-    """Up to 4 agents (the unrolled graph) the set-order ties are rare in crowds: 1,500 crowds of 4 to find some."""
-    side, agents = 4, 4
-    starts, targets = crowd(np.random.default_rng(44), side, agents, 1500)
-    ours = np.asarray(resolver(side, "set")(starts, targets))
+@pytest.mark.parametrize("height, side, agents", [(4, 4, 4), (3, 5, 4), (7, 4, 8)])
+def test_set_order_ties_on_square_and_oblong_grids(height, side, agents):
+    """Set-order ties, also where height and width differ (the hash is of (x, y)): many crowds to find some.
+
+    Up to 4 agents (the unrolled graph) they are rare: 1,500 crowds of 4.
+    """
+    starts, targets = crowd(np.random.default_rng(44), side, agents, 1500 if agents == 4 else 300, height)
+    ours = np.asarray(resolver(side, "set", height)(starts, targets))
     orders_differ = 0
     for case in range(len(starts)):
         expected = reference(starts[case], targets[case], side, "set")[0]

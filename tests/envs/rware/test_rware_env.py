@@ -81,6 +81,7 @@ def test_sizes_and_layouts():
     (lambda: make_rware(2, max_steps=-1), "max_steps"),
     (lambda: make_rware(2, sensor_range=-1), "sensor_range"),
     (lambda: wrl_jax.make("rware-tiny-4ag-v2", tie_order="lowest-id"), "tie_order"),
+    (lambda: make_rware(120, shelf_columns=9, shelf_rows=3), "use tie_order='insertion'"),
 ])
 def test_bad_input_is_a_clear_value_error(call, message):
     with pytest.raises(ValueError, match=message):

@@ -60,7 +60,9 @@ def cancelled_moves(moving: jax.Array, loaded: jax.Array, shelf_there: jax.Array
 
 
 UNROLL_LIMIT = 4
-"""Up to this many agents the graph is written out agent by agent (:func:`_resolve_unrolled`)."""
+"""Up to this many agents the graph is written out agent by agent (:func:`_resolve_unrolled`).
+
+Not above 4: its set-order ties (:func:`_small_pair_ranks`) know the one shape 4 agents allow."""
 
 TIE_ORDERS = ("set", "insertion")
 """How ties between equal chains are ordered (module docstring): rware's real order, or insertion order."""
@@ -78,7 +80,9 @@ def _tie_rank(start: jax.Array, target: jax.Array, width: int, tied: jax.Array, 
 
     ``tied`` (N,) marks the agents whose rank decides something (an equally deep rival for the same
     cell); the emulation runs in a batched ``while`` only while some environment has one, else
-    ``insertion`` (the insertion rank) is kept as it is. Only ranks within one component are compared.
+    ``insertion`` (the insertion rank) is kept as it is. The two scales (a position within the
+    component, or G's ``2i``/``2k+1``) mix safely: only rivals for one cell, always in one component,
+    are compared, and every rank stays below the key's ``2 N + 3``.
     """
     count = start.shape[0]
 
@@ -128,11 +132,11 @@ def resolve_moves(start: jax.Array, target: jax.Array, *, grid_size: tuple[int, 
         equal = rivals & (depth[None, :] == depth[:, None]) & (agents[None, :] != agents[:, None])
         last = jnp.take_along_axis(walk, jnp.sum(walk < sink, axis=0, keepdims=True) - 1, axis=0)[0]
         end = target[last]  # the empty cell the agent's chain ends in (trees only)
-        cells = jnp.sum(in_tree[None, :] & (end[None, :] == end[:, None]), axis=1) + 1  # its component's nodes
+        nodes = jnp.sum(in_tree[None, :] & (end[None, :] == end[:, None]), axis=1) + 1  # its component's size
         empty = successor == sink
         earlier = agents[None, :] < agents[:, None]
         fresh = empty & ~jnp.any(earlier & (target[None, :] == target[:, None]), axis=1)
-        small = 2 * cells < count + jnp.sum(fresh)  # FilterAtlas: 2 * len(c) < len(G)
+        small = 2 * nodes < count + jnp.sum(fresh)  # FilterAtlas: 2 * len(c) < len(G)
         rank = _tie_rank(start, target, width, in_tree & small & jnp.any(equal, axis=1), rank)
     key = depth * (2 * count + 3) - rank  # longer chain first, then earlier in the component's node order
     best = key >= jnp.max(jnp.where(rivals, key[None, :], jnp.iinfo(jnp.int32).min), axis=1)
@@ -214,6 +218,7 @@ def _small_pair_ranks(cell: list, goal: list, successor: list, depth: list, rank
     count, sink = len(cell), len(cell)
     if 2 * count < 7:  # len(G) <= 2 N: with 3 agents or fewer networkx always keeps insertion order
         return list(rank)
+    assert count == 4, "with 5 agents two such pairs can coexist, and from 6 longer ties: use _tie_rank"
     empty = [successor[i] == sink for i in range(count)]  # heads for a cell no agent stands on
     fresh = [empty[i] & functools.reduce(jnp.logical_and, [goal[j] != goal[i] for j in range(i)], jnp.bool_(True))
              for i in range(count)]

@@ -112,7 +112,8 @@ def from_rware(warehouse: Any) -> tuple[RwareState, RwareParams]:
 def env_from_rware(warehouse: Any, tie_order: str = "set") -> Rware:
     """The :class:`Rware` environment with the warehouse's static settings; its default params are from_rware's.
 
-    ``tie_order`` is ours, not the warehouse's (:mod:`wrl_jax.envs.rware.conflicts`): ``"set"`` matches rware as it runs.
+    ``tie_order`` is ours, not the warehouse's (:mod:`wrl_jax.envs.rware.conflicts`): ``"set"`` matches rware
+    as it runs.
     """
     inner = _warehouse(warehouse)
     _, params = from_rware(inner)

@@ -42,6 +42,7 @@ from wrl_jax.envs.rware.observation import (
     observe,
 )
 from wrl_jax.envs.rware.observation_image import FEATURES_SIZE, image_high, image_shape
+from wrl_jax.envs.rware.set_order import MAX_SET_SIZE, longest_set_order_component
 from wrl_jax.envs.rware.types import NUM_ACTIONS, RwareParams, RwareState
 
 
@@ -53,8 +54,9 @@ class Rware(Environment[RwareState, RwareParams]):
     ``normalised_coordinates``, ``observation_type`` (``"flattened"``, ``"dict"``, ``"image"``,
     ``"image_dict"``), for the image types ``image_observation_layers`` (names) and
     ``image_observation_directional``, and ``tie_order`` (``"set"``: ties between equal chains as
-    unpatched rware orders them; ``"insertion"``: the graph's insertion order). ``info`` holds ``delivered`` (per agent: it stood on a goal
-    that paid), ``moved``, ``time_limit`` and ``inactivity_limit``.
+    unpatched rware orders them; ``"insertion"``: the graph's insertion order). ``info`` holds
+    ``delivered`` (per agent: it stood on a goal that paid), ``moved``, ``time_limit`` and
+    ``inactivity_limit``.
     """
 
     family = "rware"
@@ -77,6 +79,9 @@ class Rware(Environment[RwareState, RwareParams]):
         self.image_observation_layers = image_layer_names(image_observation_layers, needed=image)
         self.image_observation_directional = directional_flag(image_observation_directional)
         self.tie_order = check_tie_order(tie_order)
+        if tie_order == "set" and longest_set_order_component(self.num_agents) > MAX_SET_SIZE:
+            raise ValueError(f"tie_order='set' emulates CPython's set tables up to {MAX_SET_SIZE} keys, which "
+                             f"{self.num_agents} agents may exceed; use tie_order='insertion'")
         self._name = name
         super().__init__(params)
 
