@@ -168,8 +168,8 @@ def compiled(width: int):
     return jax.jit(jax.vmap(rank))
 
 
-@pytest.mark.parametrize("agents, width, height", [  # (each count its own program: a few, the largest)
-    (3, 4, 3), (4, 5, 4), (5, 5, 5), (8, 7, 6), (12, 10, 9), (19, 16, 14),
+@pytest.mark.parametrize("agents, width, height", [  # each count its own program: a few, and the largest
+    (4, 5, 4), (8, 7, 6), (19, 16, 14),                    # (test_rware_conflicts.py runs 5 to 19 end to end)
 ])
 def test_component_rank_is_networkx_component_copy_order(agents, width, height):
     rng = np.random.default_rng(agents)
