@@ -3,6 +3,7 @@
     python bench/rware_throughput.py                                   # tiny-4ag and small-4ag, B = 1, 32, 1024, 32768
     python bench/rware_throughput.py --batch-sizes 1 32 1024 --seconds 1 --profile
     python bench/rware_throughput.py --jumanji-python /tmp/jumanji-venv/bin/python
+    python bench/rware_throughput.py --tie-orders rware-tiny-8ag-v2        # what the exact tie order costs
 
 Ours: ``jit(lax.scan(vmap(env.step)))`` over ``T`` steps of ``B`` environments (auto-reset included), uniform
 random actions drawn up front in the timed call (:func:`draws`), compile time measured apart
@@ -340,8 +341,14 @@ def main() -> None:
     parser.add_argument("--profile-batch", type=int, default=1024)
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "rware")
     parser.add_argument("--markdown-only", action="store_true", help="rewrite throughput.md from throughput.json")
+    parser.add_argument("--tie-orders", nargs="+", metavar="ID",
+                        help="only time tie_order 'set' against 'insertion' on these rware ids, at --profile-batch")
     parser.add_argument("--jumanji-child", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.tie_orders:
+        rows = {name: bench_tie_orders(name, args.profile_batch, args.repeats) for name in args.tie_orders}
+        print(json.dumps(rows, indent=1))
+        return
     if args.markdown_only:
         (args.out / "throughput.md").write_text(markdown(json.loads((args.out / "throughput.json").read_text())))
         return

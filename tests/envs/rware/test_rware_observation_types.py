@@ -158,38 +158,38 @@ def run(warehouse, steps, seed):
         assert_same_arrays(ours, stacked(obs, kind), kind)
         assert_same_objects(agent_observations(env, ours), obs)
 
-    with oracle.tie_rule("set"):  # rware unpatched: our default tie order is its own
-        obs, _ = warehouse.reset(seed=seed)
-        env, state, params = oracle.ours(warehouse)
-        compare_reset(obs, env, state, params)
-        recorder = oracle.record_draws(warehouse)
-        for t in range(steps):
-            arrays = oracle.rware_arrays(warehouse)
-            policy = oracle.POLICIES[("random", "biased", "crowding", "crowding")[rng.integers(4)]]
-            actions = oracle.with_messages(policy(arrays, layout, rng), rng, warehouse.msg_bits)
-            recorder.draws.clear()
-            obs, rewards, done, _, _ = warehouse.step([a.tolist() if np.ndim(a) else int(a) for a in actions])
-            replacements = np.zeros(env.num_goals, np.int32)
-            replacements[: len(recorder.draws)] = recorder.draws
-            ours, state, reward, terminated, truncated, info = oracle.STEP(
-                env, state, np.asarray(actions, np.int32), replacements, params)
-            where = f"step {t}"
-            assert_same_arrays(ours, stacked(obs, kind), kind)  # right away: rware's dicts alias the messages
-            assert_same_objects(agent_observations(env, ours), obs, where)
-            np.testing.assert_array_equal(np.asarray(info["final_global_state"]).reshape(len(obs), -1),
-                                          flattened(warehouse, obs).astype(np.float32), err_msg=where)
-            np.testing.assert_array_equal(np.asarray(reward), np.asarray(rewards, np.float32), err_msg=where)
-            assert not bool(terminated) and bool(truncated) == done, where
-            theirs, mine = oracle.rware_arrays(warehouse), oracle.state_arrays(state)
-            assert [name for name in theirs if not np.array_equal(theirs[name], mine[name])] == [], where
-            counts["transitions"] += 1
-            counts["deliveries"] += len(recorder.draws)
-            if done:
-                obs, _ = warehouse.reset()
-                state, _ = from_rware(warehouse)
-                compare_reset(obs, env, state, params)
-                recorder = oracle.record_draws(warehouse)
-                counts["resets"] += 1
+    # rware runs unpatched: our default tie order is its own.
+    obs, _ = warehouse.reset(seed=seed)
+    env, state, params = oracle.ours(warehouse)
+    compare_reset(obs, env, state, params)
+    recorder = oracle.record_draws(warehouse)
+    for t in range(steps):
+        arrays = oracle.rware_arrays(warehouse)
+        policy = oracle.POLICIES[("random", "biased", "crowding", "crowding")[rng.integers(4)]]
+        actions = oracle.with_messages(policy(arrays, layout, rng), rng, warehouse.msg_bits)
+        recorder.draws.clear()
+        obs, rewards, done, _, _ = warehouse.step([a.tolist() if np.ndim(a) else int(a) for a in actions])
+        replacements = np.zeros(env.num_goals, np.int32)
+        replacements[: len(recorder.draws)] = recorder.draws
+        ours, state, reward, terminated, truncated, info = oracle.STEP(
+            env, state, np.asarray(actions, np.int32), replacements, params)
+        where = f"step {t}"
+        assert_same_arrays(ours, stacked(obs, kind), kind)  # right away: rware's dicts alias the messages
+        assert_same_objects(agent_observations(env, ours), obs, where)
+        np.testing.assert_array_equal(np.asarray(info["final_global_state"]).reshape(len(obs), -1),
+                                      flattened(warehouse, obs).astype(np.float32), err_msg=where)
+        np.testing.assert_array_equal(np.asarray(reward), np.asarray(rewards, np.float32), err_msg=where)
+        assert not bool(terminated) and bool(truncated) == done, where
+        theirs, mine = oracle.rware_arrays(warehouse), oracle.state_arrays(state)
+        assert [name for name in theirs if not np.array_equal(theirs[name], mine[name])] == [], where
+        counts["transitions"] += 1
+        counts["deliveries"] += len(recorder.draws)
+        if done:
+            obs, _ = warehouse.reset()
+            state, _ = from_rware(warehouse)
+            compare_reset(obs, env, state, params)
+            recorder = oracle.record_draws(warehouse)
+            counts["resets"] += 1
     return counts
 
 
