@@ -98,13 +98,9 @@ class LoopConfig:
             chunk = max(1, math.ceil(num_updates / 20))
             chunk = log_every * math.ceil(chunk / log_every)
         if chunk % log_every:
-            raise ValueError(
-                f"chunk_updates={chunk} must be a multiple of log_every={log_every} "
-                "(a metrics row never straddles two chunks)"
-            )
-        return dataclasses.replace(
-            self, chunk_updates=int(chunk), eval_every=int(eval_every), log_every=int(log_every)
-        )
+            raise ValueError(f"chunk_updates={chunk} must be a multiple of log_every={log_every} "
+                             "(a metrics row never straddles two chunks)")
+        return dataclasses.replace(self, chunk_updates=int(chunk), eval_every=int(eval_every), log_every=int(log_every))
 
 
 # -------------------------------------------------------------------- Trainer
@@ -141,6 +137,10 @@ class Trainer:
         self._compiled_signature = None
         self.evaluation = family_evaluation.for_env(algo.env)
         self._eval_jit = jax.jit(self._evaluate)
+        # One jitted init per batching of (hyper, env_params), and the evaluation's shapes per runner
+        # signature: a trainer run again (a resume, a sweep's points) neither retraces nor recompiles them.
+        self._init_jits: dict[tuple[bool, bool], Any] = {}
+        self._eval_shapes: dict[tuple, Any] = {}
 
     # ---------------------------------------------------------------- init
     def init(self, hyper: Any = None, env_params: Any = None) -> Any:
@@ -149,9 +149,11 @@ class Trainer:
         ``hyper`` / ``env_params``: ``None`` for the algorithm's own, or pytrees
         whose leaves have a leading axis of ``len(seeds)`` (a sweep).
         """
-        keys = seed_keys(self.seeds)
-        in_axes = (0, None if hyper is None else 0, None if env_params is None else 0)
-        return jax.jit(jax.vmap(self.algo.init, in_axes=in_axes))(keys, hyper, env_params)
+        batched = (hyper is not None, env_params is not None)
+        if batched not in self._init_jits:
+            in_axes = (0, 0 if batched[0] else None, 0 if batched[1] else None)
+            self._init_jits[batched] = jax.jit(jax.vmap(self.algo.init, in_axes=in_axes))
+        return self._init_jits[batched](seed_keys(self.seeds), hyper, env_params)
 
     def template(self, hyper: Any = None, env_params: Any = None) -> Any:
         """Shapes and dtypes of :meth:`init`'s result, without computing it (for checkpoint loading)."""
@@ -166,7 +168,10 @@ class Trainer:
 
     def empty_eval(self, runners: Any) -> LatestEval:
         """A :class:`LatestEval` holding no evaluation yet (``update == 0``)."""
-        shapes = jax.eval_shape(self._evaluate, runners)
+        signature = _signature(runners)
+        if signature not in self._eval_shapes:
+            self._eval_shapes[signature] = jax.eval_shape(self._evaluate, runners)
+        shapes = self._eval_shapes[signature]
         return LatestEval(update=jnp.int32(0), episodes=jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes))
 
     def _chunk(self, runners: Any, start: jax.Array, latest: LatestEval) -> tuple[Any, dict, LatestEval]:
