@@ -155,7 +155,7 @@ def test_the_repair_is_rare(batches, family):
     assert np.mean(attempts == gen.GeneratorConfig().max_attempts) < 0.01
 
 
-def test_ood_sets_hold_the_long_route_sets_unless_told_not_to(monkeypatch):
+def test_ood_sets_hold_the_long_route_sets_unless_told_not_to_and_build_only_those_named(monkeypatch):
     """The sets and the generators they are drawn from (test_procedural's final report generates them for real)."""
     calls = []
 
@@ -183,3 +183,12 @@ def test_ood_sets_hold_the_long_route_sets_unless_told_not_to(monkeypatch):
     calls.clear()
     without = [s.name for s in layout_sets.ood_sets(generator, 16, long_routes=False)]
     assert not set(LONG) & set(without) and without[:2] == ["dense", "narrow_shelves"] and len(calls) == 2
+    # Only the sets asked for are built (and generated with the keys they have in the full list).
+    calls.clear()
+    chosen = layout_sets.ood_sets(generator, 16, names=["spiral", "study_12x12"])
+    assert [s.name for s in chosen] == ["spiral", "study_12x12"] and [c[0].family for c in calls] == ["spiral"]
+    assert chosen[0].description == sets["spiral"].description
+    spiral_key = jax.random.fold_in(jax.random.fold_in(jax.random.key(layout_sets.EVAL_SEED), 3), 3)
+    assert calls[0][2] == tuple(np.asarray(jax.random.key_data(spiral_key)).tolist())
+    with pytest.raises(ValueError, match=r"unknown out-of-distribution set\(s\) \['spirals'\]"):
+        layout_sets.ood_sets(generator, 16, names=["spirals"])

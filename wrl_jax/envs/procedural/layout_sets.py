@@ -100,7 +100,8 @@ def movingai_layouts(max_shape: tuple[int, int], draws: int | None = None, num_i
                   for draw in range(draws)])
 
 
-def ood_sets(generator, ood_layouts: int | None = None, long_routes: bool = True) -> list[LayoutSet]:
+def ood_sets(generator, ood_layouts: int | None = None, long_routes: bool = True,
+             names: Sequence[str] | None = None) -> list[LayoutSet]:
     """The out-of-distribution sets for a policy trained on ``generator``'s layouts (skipping what does not fit).
 
     - ``dense``: obstacle floors of a density above the training range (its top to 10 points over it);
@@ -110,43 +111,48 @@ def ood_sets(generator, ood_layouts: int | None = None, long_routes: bool = True
       the training families' (a test of planning);
     - ``study_8x8``, ``study_12x12``: the study's maps, padded, every item;
     - ``movingai``: :data:`MOVINGAI_WAREHOUSE` with :data:`MOVINGAI_DRAWS` drawn placements.
+
+    ``names``: build only these sets (each generated family compiles its own generator); a name that is
+    not one of the above is a ``ValueError``.
     """
     ood_layouts = OOD_LAYOUTS if ood_layouts is None else int(ood_layouts)
     key = jax.random.fold_in(jax.random.key(EVAL_SEED), 3)
     top = generator.density[1]
+    height, width = generator.max_shape
+    shape = f"{height}x{width}"
+
+    def generated(index: int, config) -> PaddedLayout:
+        return generate_pool(jax.random.fold_in(key, index), ood_layouts, config, stream="heldout").layouts
+
     dense = dataclasses.replace(generator, family="obstacles", density=(top, min(top + 0.1, 0.95)))
     narrow = dataclasses.replace(generator, family="shelves", min_shape=generator.max_shape, aisle=(1, 1),
                                  gap_rate=(0.0, 0.0))
-    sets = [
-        LayoutSet("dense", f"obstacle floors, density {dense.density[0]:.2f}..{dense.density[1]:.2f} "
-                           f"(training {generator.density[0]:.2f}..{top:.2f})",
-                  generate_pool(jax.random.fold_in(key, 0), ood_layouts, dense, stream="heldout").layouts),
-        LayoutSet("narrow_shelves", f"shelf floors at {generator.max_shape[0]}x{generator.max_shape[1]}, "
-                                    "one-cell aisles, no gaps",
-                  generate_pool(jax.random.fold_in(key, 1), ood_layouts, narrow, stream="heldout").layouts),
-    ]
-    if long_routes:
-        shape = f"{generator.max_shape[0]}x{generator.max_shape[1]}"
-        for index, (family, what) in enumerate((
-                ("serpentine", "parallel walls with one opening each, at alternating ends: one long snake"),
-                ("spiral", "a corridor winding from an outer corner into the centre"),
-                ("comb", "a spine corridor with long dead-end teeth, mostly hairpins")), start=2):
-            config = dataclasses.replace(generator, family=family, min_shape=generator.max_shape)
-            sets.append(LayoutSet(family, f"{family} floors at {shape}: {what}",
-                                  generate_pool(jax.random.fold_in(key, index), ood_layouts, config,
-                                                stream="heldout").layouts))
-    height, width = generator.max_shape
+    builders = {  # name -> (fits, description, layouts), built only when asked for
+        "dense": (True, f"obstacle floors, density {dense.density[0]:.2f}..{dense.density[1]:.2f} "
+                        f"(training {generator.density[0]:.2f}..{top:.2f})", lambda: generated(0, dense)),
+        "narrow_shelves": (True, f"shelf floors at {shape}, one-cell aisles, no gaps", lambda: generated(1, narrow)),
+    }
+    for index, (family, what) in enumerate((
+            ("serpentine", "parallel walls with one opening each, at alternating ends: one long snake"),
+            ("spiral", "a corridor winding from an outer corner into the centre"),
+            ("comb", "a spine corridor with long dead-end teeth, mostly hairpins")), start=2):
+        config = dataclasses.replace(generator, family=family, min_shape=generator.max_shape)
+        builders[family] = (long_routes, f"{family} floors at {shape}: {what}",
+                            lambda index=index, config=config: generated(index, config))
     for name, side in (("8x8", 8), ("12x12", 12)):
-        if side <= min(height, width):
-            sets.append(LayoutSet(f"study_{name}", f"the study's {name} map, padded, every item",
-                                  stack([study_layout(name, generator.max_shape)])))
+        builders[f"study_{name}"] = (side <= min(height, width), f"the study's {name} map, padded, every item",
+                                     lambda name=name: stack([study_layout(name, generator.max_shape)]))
     rows, cols = parse_movingai(MOVINGAI_WAREHOUSE).shape
-    if rows <= height and cols <= width:
-        items = min(generator.max_items, 8)
-        placements = movingai_layouts(generator.max_shape, num_items=items)
-        sets.append(LayoutSet("movingai", f"a {rows}x{cols} MovingAI .map warehouse, {placements.num_items.shape[0]} "
-                                          f"drawn placements of start, goal and {items} items", placements))
-    return sets
+    items = min(generator.max_items, 8)
+    builders["movingai"] = (rows <= height and cols <= width,
+                            f"a {rows}x{cols} MovingAI .map warehouse, {MOVINGAI_DRAWS} drawn placements of "
+                            f"start, goal and {items} items",
+                            lambda: movingai_layouts(generator.max_shape, num_items=items))
+    unknown = sorted(set(names or ()) - set(builders))
+    if unknown:
+        raise ValueError(f"unknown out-of-distribution set(s) {unknown}; the sets are {list(builders)}")
+    return [LayoutSet(name, what, build()) for name, (fits, what, build) in builders.items()
+            if fits and (names is None or name in names)]
 
 
 def layout_file_sets(paths: Sequence[str], max_shape: tuple[int, int], num_items: int = 8) -> list[LayoutSet]:
