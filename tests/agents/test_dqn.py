@@ -175,7 +175,7 @@ def test_truncated_transition_stores_the_observation_before_the_reset(small_env)
     env, params = wrl_jax.make_from_layout(SMALL_MAP, max_steps=3)
     config = dataclasses.replace(SMALL, total_timesteps=64, num_envs=4, buffer_size=64, learning_starts=10_000)
     algo = DQN(config, env, params)
-    runner = algo.init(jax.random.PRNGKey(3))
+    runner = jax.jit(algo.init)(jax.random.PRNGKey(3))
     step = jax.jit(algo._env_step)
     step_env = jax.jit(jax.vmap(functools.partial(env.transition, None), in_axes=(0, 0, None)))
     rows = []
@@ -235,7 +235,7 @@ def test_schedules_learning_starts_and_target_updates(small_env):
     config = dataclasses.replace(SMALL, num_envs=4, learning_starts=16, target_update_interval=12, tau=1.0)
     algo = DQN(config, env, params)
     update = jax.jit(algo.update)
-    runner = algo.init(jax.random.PRNGKey(0))
+    runner = jax.jit(algo.init)(jax.random.PRNGKey(0))
     trained, target_moved = [], []
     for index in range(10):  # 4 transitions per update
         before = runner

@@ -175,7 +175,7 @@ def test_correlated_exploration_keeps_its_direction(corridor, rho):
     algo = SAC(tiny(SACConfig, noise_correlation=rho), env, params)
     # The collection alone (the gradient step is not compiled): 200 vector steps, all before learning starts.
     collect = jax.jit(lambda runner: jax.lax.scan(algo._env_step, runner, jnp.zeros(200, jnp.int32))[0])
-    runner = collect(algo.init(jax.random.key(0)))
+    runner = collect(jax.jit(algo.init)(jax.random.key(0)))
     actions = np.asarray(runner.buffer.data.action[: 8 * 200]).reshape(200, 8, 2)
     lag1 = np.mean([np.corrcoef(actions[:-1, e, d], actions[1:, e, d])[0, 1] for e in range(8) for d in range(2)])
     assert (lag1 > 0.75) if rho else (abs(lag1) < 0.15), lag1

@@ -250,7 +250,7 @@ def test_training_sharpens_the_planning_policy_on_held_out_layouts():
                                 memory=algo.policy_memory())["heldout"]
         return greedy["optimal_rate"], sampled["optimal_rate"]
 
-    (greedy, sampled), (greedy_0, sampled_0) = rates(runner), rates(algo.init(jax.random.key(0)))
+    (greedy, sampled), (greedy_0, sampled_0) = rates(runner), rates(jax.jit(algo.init)(jax.random.key(0)))
     print(f"at the optimum, greedy: {greedy:.3f} (untrained {greedy_0:.3f}); sampled {sampled:.3f} ({sampled_0:.3f})")
     assert greedy_0 > 0.95 and greedy > 0.95, (greedy_0, greedy)
     assert sampled > sampled_0 + 0.3, (sampled, sampled_0)

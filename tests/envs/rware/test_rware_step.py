@@ -19,7 +19,7 @@ def test_the_step_is_the_base_class_step_bit_for_bit(typed):
     env, params = make_rware(2, layout="x.x\ng.g", request_queue_size=1, max_steps=7, max_inactivity_steps=3)
     make_key = jax.random.key if typed else jax.random.PRNGKey
     keys = jax.vmap(make_key)(jnp.arange(4))
-    _, state = jax.vmap(env.reset)(keys)
+    _, state = jax.jit(jax.vmap(env.reset))(keys)
     state = state.replace(time=jnp.array([0, 2, 4, 6], jnp.int32))
     actions = jax.random.randint(make_key(9), (12, 4, 2), 0, 5, dtype=jnp.int32)
 
