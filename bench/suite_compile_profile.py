@@ -13,15 +13,23 @@ from __future__ import annotations
 import argparse
 import collections
 import json
+import re
 from pathlib import Path
 
 BINS = ((0.05, "< 0.05 s"), (0.2, "0.05-0.2 s"), (1.0, "0.2-1 s"), (3.0, "1-3 s"), (float("inf"), ">= 3 s"))
 
 
+def function_name(name: str) -> str:
+    """JAX names a function ``train`` in its trace event and ``jit(train)`` in its lowering and compile events."""
+    match = re.fullmatch(r"\w+\((.*)\)", name)
+    return match.group(1) if match else name
+
+
 def load(folder: Path) -> list[tuple[str, str, str, float]]:
     events = []
     for path in sorted(folder.glob("*.json")):
-        events += [tuple(e) for e in json.loads(path.read_text())]
+        events += [(test, kind, function_name(function), duration)
+                   for test, kind, function, duration in json.loads(path.read_text())]
     return events
 
 

@@ -5,7 +5,8 @@
 
 Each test process (the controller and every xdist worker) writes ``DIR/<worker>.json``: one
 ``[test id, kind, function name, seconds]`` per event JAX reports through ``jax.monitoring``
-(kind ``trace``, ``lower``, ``compile``, or ``cache_hit`` for a program the persistent cache served).
+(kind ``trace``, ``lower``, ``compile``, or ``cache_hit`` for a program the persistent cache served; JAX
+reports a compile event for those too). The folder's earlier ``.json`` files are removed at the start.
 Subprocesses a test starts (CLI runs, notebook kernels) are not seen: their time counts as the test's.
 """
 
@@ -38,7 +39,11 @@ def _listener(event: str, duration: float, **kwargs) -> None:
 
 
 def pytest_configure(config):
-    if config.getoption("--compile-profile"):
+    folder = config.getoption("--compile-profile")
+    if folder:
+        if "PYTEST_XDIST_WORKER" not in os.environ:  # the controller, before any worker: no earlier run's files
+            for old in Path(folder).glob("*.json"):
+                old.unlink()
         import jax.monitoring
 
         jax.monitoring.register_event_duration_secs_listener(_listener)

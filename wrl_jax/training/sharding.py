@@ -146,6 +146,7 @@ class ShardedTrainer(training.Trainer):
         self.specs = runner_specs(template, self.num_envs)
         self.runner_shardings = jax.tree.map(lambda spec: NamedSharding(self.mesh, spec), self.specs)
         self.replicated = NamedSharding(self.mesh, P())
+        self._sharded_init_jits: dict[tuple[bool, bool], Any] = {}
         # The seed axis is split *manually* (shard_map): every device runs the program
         # of an unsharded batch of its seeds, so the results are those of
         # len(seeds) / devices-sized batches trained apart (bit for bit for PPO; to
@@ -183,15 +184,15 @@ class ShardedTrainer(training.Trainer):
     # ------------------------------------------------------------ placement
     def init(self, hyper: Any = None, env_params: Any = None) -> Any:
         """Batched runner state created directly in its sharded layout (never whole on one device)."""
-        keys = training.seed_keys(self.seeds)
-        in_axes = (0, None if hyper is None else 0, None if env_params is None else 0)
-        init = jax.jit(
-            jax.vmap(self.algo.init, in_axes=in_axes),
-            in_shardings=self.replicated,
-            out_shardings=self.runner_shardings,
-        )
+        batched = (hyper is not None, env_params is not None)
+        if batched not in self._sharded_init_jits:  # one per batching (the driver's own serve the templates)
+            in_axes = (0, 0 if batched[0] else None, 0 if batched[1] else None)
+            self._sharded_init_jits[batched] = jax.jit(
+                jax.vmap(self.algo.init, in_axes=in_axes), in_shardings=self.replicated,
+                out_shardings=self.runner_shardings)
         # Host values are the same global value on every process (multi-host safe).
-        return init(_to_host(keys), _to_host(hyper), _to_host(env_params))
+        keys = training.seed_keys(self.seeds)
+        return self._sharded_init_jits[batched](_to_host(keys), _to_host(hyper), _to_host(env_params))
 
     def template(self, hyper: Any = None, env_params: Any = None) -> Any:
         return jax.eval_shape(lambda h, e: training.Trainer.init(self, h, e), hyper, env_params)

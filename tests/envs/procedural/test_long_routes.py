@@ -192,3 +192,7 @@ def test_ood_sets_hold_the_long_route_sets_unless_told_not_to_and_build_only_tho
     assert calls[0][2] == tuple(np.asarray(jax.random.key_data(spiral_key)).tolist())
     with pytest.raises(ValueError, match=r"unknown out-of-distribution set\(s\) \['spirals'\]"):
         layout_sets.ood_sets(generator, 16, names=["spirals"])
+    with pytest.raises(ValueError, match=r"set\(s\) \['spiral'\] do not fit this generator"):
+        layout_sets.ood_sets(generator, 16, long_routes=False, names=["spiral"])
+    with pytest.raises(ValueError, match="a list of set names"):
+        layout_sets.ood_sets(generator, 16, names="spiral")

@@ -12,7 +12,7 @@ keeping insertion order in ``subgraph`` (``rware_oracle.insertion_order``).
 
 Knobs: ``WRL_RWARE_PARITY_STEPS`` (steps per configuration, default 30), and
 ``WRL_RWARE_PARITY_ALL=1`` for every size x 2..19 agents (by default :data:`CI_COUNTS`, the sizes and
-request-queue sizes taking turns, so that every size and every queue size is covered).
+request-queue settings taking turns, so that every size and every setting (-easy, default, -hard) is covered).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ STEPS = int(os.environ.get("WRL_RWARE_PARITY_STEPS", "30"))
 ALL = os.environ.get("WRL_RWARE_PARITY_ALL", "") == "1"
 SIZE_NAMES, DIFFICULTY_NAMES = list(SIZES), list(DIFFICULTIES)
 CI_COUNTS = (2, 3, 4, 5, 6, 8, 11, 14, 19)
-"""Agent counts of the default run (one compiled program each): every size and every request-queue size
+"""Agent counts of the default run (one compiled program each): every size and every request-queue setting
 between them, crowds of up to 19. The long run (``WRL_RWARE_PARITY_ALL=1``) takes every count 2..19 on every size."""
 
 

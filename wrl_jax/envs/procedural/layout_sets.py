@@ -112,9 +112,11 @@ def ood_sets(generator, ood_layouts: int | None = None, long_routes: bool = True
     - ``study_8x8``, ``study_12x12``: the study's maps, padded, every item;
     - ``movingai``: :data:`MOVINGAI_WAREHOUSE` with :data:`MOVINGAI_DRAWS` drawn placements.
 
-    ``names``: build only these sets (each generated family compiles its own generator); a name that is
-    not one of the above is a ``ValueError``.
+    ``names``: build only these sets (each generated family compiles its own generator), in the order above;
+    a name that is not one of them, or a set that does not fit this generator, is a ``ValueError``.
     """
+    if isinstance(names, str):
+        raise ValueError(f"names must be a list of set names, got the string {names!r}")
     ood_layouts = OOD_LAYOUTS if ood_layouts is None else int(ood_layouts)
     key = jax.random.fold_in(jax.random.key(EVAL_SEED), 3)
     top = generator.density[1]
@@ -151,6 +153,10 @@ def ood_sets(generator, ood_layouts: int | None = None, long_routes: bool = True
     unknown = sorted(set(names or ()) - set(builders))
     if unknown:
         raise ValueError(f"unknown out-of-distribution set(s) {unknown}; the sets are {list(builders)}")
+    unfit = [name for name in names or () if not builders[name][0]]
+    if unfit:
+        raise ValueError(f"out-of-distribution set(s) {unfit} do not fit this generator (max_shape "
+                         f"{shape}{'' if long_routes else ', long_routes=False'})")
     return [LayoutSet(name, what, build()) for name, (fits, what, build) in builders.items()
             if fits and (names is None or name in names)]
 
