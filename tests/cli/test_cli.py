@@ -95,6 +95,8 @@ def test_evaluation_command_loads_the_checkpoint(finished_run, tmp_path):
         (["--gamma", "2"], "gamma must be in"),
         (["--resume"], "no checkpoint at"),
         (["--eval-every", "-1"], "eval_every"),
+        (["--reward-type", "global"], "--reward-type: rware options, but --env"),
+        (["--env", "rware-tiny-2ag-v2", "--reward-type", "best"], "reward_type"),
     ],
 )
 def test_bad_commands_fail_clearly_before_compiling(argv, message, capsys, tmp_path):

@@ -66,6 +66,14 @@ class EnvOptions:
     """procedural environments: the visited channel counts visits up to this many (1: visited or not)"""
     observe_target: bool | None = None
     """continuous environments: the target seen from the robot (offset, distance, bearing) after the contract's values"""
+    reward_type: str | None = None
+    """rware environments: individual (default), global or two_stage"""
+    sensor_range: int | None = None
+    """rware environments: cells seen in each direction (the flattened observation grows with it)"""
+    max_inactivity_steps: int | None = None
+    """rware environments: end the episode after this many steps without a delivery (default: never)"""
+    tie_order: str | None = None
+    """rware environments: set (unpatched rware's order, default) or insertion (networkx's insertion order)"""
     observe_rays: bool | None = None
     """procedural environments: the free runs from the robot up, down, left and right (a range sensor)"""
 
@@ -210,6 +218,10 @@ FAMILY_OPTIONS = {
     "view_radius": ("fleet", "procedural"),
     "shaping": ("fleet", "procedural", "continuous"),
     "observe_target": ("continuous",),
+    "reward_type": ("rware",),
+    "sensor_range": ("rware",),
+    "max_inactivity_steps": ("rware",),
+    "tie_order": ("rware",),
     "pool_size": ("procedural",),
     "pool_refresh": ("procedural",),
     "observe_last_action": ("procedural", "fleet"),

@@ -12,9 +12,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import wrl_jax
 from wrl_jax.cli import train as cli_train
 from wrl_jax.core import registry
 from wrl_jax.envs.rware import evaluation, make_rware
+from wrl_jax.envs.rware.registration import reward_code
 from wrl_jax.envs.rware.types import FORWARD, LEFT_DIR, NOOP, RIGHT, RIGHT_DIR, TOGGLE_LOAD
 
 ROW = "xgx"
@@ -94,20 +96,31 @@ def test_summary_and_report_of_two_seeds():
 
 def test_train_ppo_on_rware_reports_the_hooks_numbers(tmp_path):
     """``train_ppo.py``'s command on rware-tiny-2ag-v2 (the ``rware`` preset unless told otherwise), MAPPO's
-    centralized critic, evaluated in the loop: it runs and reports; no learning is claimed at this size."""
+    centralized critic, evaluated in the loop, with rware's settings as flags: it runs and reports; no learning
+    is claimed at this size."""
     out = tmp_path / "run"
+    settings = ["--reward-type", "global", "--sensor-range", "2", "--max-inactivity-steps", "400",
+                "--tie-order", "insertion"]
     argv = ["--env", "rware-tiny-2ag-v2", "--critic", "centralized", "--num-envs", "4", "--num-steps", "8",
             "--num-minibatches", "2", "--update-epochs", "1", "--hidden-sizes", "16", "16", "--total-timesteps", "64",
-            "--num-seeds", "1", "--eval-every", "2", "--out", str(out), "--no-progress", "--no-plot"]
+            "--num-seeds", "1", "--eval-every", "2", "--out", str(out), "--no-progress", "--no-plot", *settings]
     printed = io.StringIO()
     with contextlib.redirect_stdout(printed):
         assert cli_train.main("ppo", argv) == 0
     summary = json.loads((out / "summary.json").read_text())
     ev = summary["eval"]
     assert ev["episodes"] == evaluation.TRAINING_EPISODES and ev["num_agents"] == 2
-    assert ev["per_seed"][0]["length"] == 500 and ev["return"] >= 0 and ev["deliveries"] >= 0
+    assert ev["return"] >= 0 and ev["deliveries"] >= 0
+    # --max-inactivity-steps 400: a team that delivers nothing stops there, before rware's 500.
+    assert ev["per_seed"][0]["length"] == 400 if ev["deliveries"] == 0 else 400 <= ev["per_seed"][0]["length"] <= 500
     assert summary["convergence"]["definition"] == evaluation.SOLVED_DEFINITION
     assert summary["preset"] == "rware" and summary["config"]["learning_rate"] == 1e-3  # the family's preset
+    overrides = json.loads((out / "config.json").read_text())["env_overrides"]
+    assert overrides == {"reward_type": "global", "sensor_range": 2, "max_inactivity_steps": 400,
+                         "tie_order": "insertion"}
+    env, params = wrl_jax.make("rware-tiny-2ag-v2", **overrides)  # what the run trained on
+    assert env.obs_size == 8 + 25 * 7 and env.tie_order == "insertion"
+    assert int(params.max_inactivity_steps) == 400 and int(params.reward_type) == reward_code("global")
     assert "episode return, all agents" in printed.getvalue()
     rows = (out / "metrics.csv").read_text().splitlines()
     assert {"eval_return", "eval_solved", "train_throughput"} <= set(rows[0].split(","))
