@@ -227,3 +227,15 @@ def test_encoder_flag_builds_the_propagation_policy_and_refuses_an_env_without_a
     command = cli_options.parse("ppo", [*argv, "--observe-map", "False", "--out", str(tmp_path / "b")])
     with pytest.raises(ValueError, match="observes none .*--observe-map True"):
         build(command.spec, command.config, command.env)
+
+
+def test_randomize_flag_builds_the_randomized_warehouse(tmp_path):
+    """``--randomize True`` (domain randomization) reaches the continuous warehouse's params; other families refuse it."""
+    command = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--randomize", "True",
+                                        "--out", str(tmp_path / "a")])
+    algo = cli_options.build(command.spec, command.config, command.env)
+    assert bool(algo.env_params.randomize) and algo.env.observe_target
+    plain = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--out", str(tmp_path / "b")])
+    assert "randomize" not in plain.env.overrides()
+    with pytest.raises(ValueError, match="--randomize: continuous options"):
+        cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--randomize", "True", "--out", str(tmp_path / "c")])

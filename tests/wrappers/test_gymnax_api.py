@@ -73,6 +73,18 @@ def tree_equal(a, b) -> bool:
     return tree_a == tree_b and all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(leaves_a, leaves_b))
 
 
+class _SameStep:
+    """Stands for the environment under the legacy view inside the rollout: its ``step`` is the 6-value step
+    already computed there, returned when called with the very arguments (tracers) it was computed from."""
+
+    def __init__(self, out: tuple, args: tuple):
+        self.out, self.args = out, args
+
+    def step(self, *args):
+        assert len(args) == len(self.args) and all(a is b for a, b in zip(args, self.args)), "arguments not passed on"
+        return self.out
+
+
 def make_rollout(env, params, length: int, arity: dict):
     """``keys -> trace``: ``BATCH`` environments, random actions, ``length`` steps of ``jax.vmap(env.step)``.
 
@@ -81,13 +93,14 @@ def make_rollout(env, params, length: int, arity: dict):
     observation the transition alone reaches (``env.transition`` with the
     first half of the split key, the base class's convention; the warehouse's
     transition ignores its key) and whether each observation lies in the
-    space. The duplicated work is one computation for XLA (common
-    subexpressions), so a single compile serves every check. ``arity``
-    receives the number of values each ``step`` returned, at trace time.
+    space, all in one compiled program. The legacy view wraps
+    :class:`_SameStep`, which hands it the step already computed: XLA does not
+    merge two copies of a step (its loops and conditionals), and a second copy
+    doubled the compile. ``arity`` receives the number of values each ``step``
+    returned, at trace time.
     """
     obs_space = env.observation_space(params)
     action_space = env.action_space(params)
-    legacy = wrl_jax.LegacyStepAPI(env)
 
     def one_env(key):
         reset_key, run_key = jax.random.split(key)
@@ -98,7 +111,8 @@ def make_rollout(env, params, length: int, arity: dict):
             action_key, step_key = jax.random.split(key)
             action = sample_action(env, action_key)
             out = env.step(step_key, state, action, params)
-            old = legacy.step(step_key, state, action, params)
+            old = wrl_jax.LegacyStepAPI(_SameStep(out, (step_key, state, action, params))).step(
+                step_key, state, action, params)
             arity["step"], arity["legacy"] = len(out), len(old)
             next_obs, next_state, reward, terminated, truncated, info = out
             reached = env.transition(jax.random.split(step_key)[0], state, action, params)[0]

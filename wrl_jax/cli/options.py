@@ -66,6 +66,8 @@ class EnvOptions:
     """procedural environments: the visited channel counts visits up to this many (1: visited or not)"""
     observe_target: bool | None = None
     """continuous environments: the target seen from the robot (offset, distance, bearing) after the contract's values"""
+    randomize: bool | None = None
+    """continuous environments: domain randomization (gains, actuation and lidar noise, start jitter) per episode"""
     reward_type: str | None = None
     """rware environments: individual (default), global or two_stage"""
     sensor_range: int | None = None
@@ -218,6 +220,7 @@ FAMILY_OPTIONS = {
     "view_radius": ("fleet", "procedural"),
     "shaping": ("fleet", "procedural", "continuous"),
     "observe_target": ("continuous",),
+    "randomize": ("continuous",),
     "reward_type": ("rware",),
     "sensor_range": ("rware",),
     "max_inactivity_steps": ("rware",),

@@ -1,0 +1,136 @@
+"""Domain randomization on the continuous warehouse: does a policy trained with it hold when the test ranges widen?
+
+Issue 34's measurement: train PPO (``train_ppo.py``'s command, the ``continuous`` preset) on a study map twice,
+with ``--randomize True`` and without, then evaluate every seed's greedy policy under three conditions:
+
+* ``nominal``: the contract's robot, no noise (``randomize=False``);
+* ``1x``: the contract's randomization ranges (gains in [0.8, 1.2], actuation noise 0.05, lidar noise 0.02 m,
+  dropout 0.02, start within 0.2 m, heading uniform);
+* ``1.5x``: every range 1.5 times as wide: gains in [0.7, 1.3], actuation noise 0.075, lidar noise 0.03 m,
+  dropout 0.03. The start jitter stays 0.2 m: at 0.3 m a robot of radius 0.3 could start inside a shelf
+  (the environment refuses more than ``0.5 - robot_radius``), and the heading is uniform in both.
+
+Every item, ``--rounds`` episodes per item (fixed draws, the same for every policy). The aim: the randomized
+policy loses at most 2 points of delivery from ``1x`` to ``1.5x``.
+
+Usage: ``python bench/continuous_randomization.py [--env Continuous-Warehouse-8x8-v0] [--total-timesteps 1000000]
+[--num-seeds 4] [--rounds 16] [--out runs/randomization] [--json bench/results/continuous/randomization.json]``.
+A run directory that already holds a finished run is evaluated again, not retrained.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from wrl_jax import training
+from wrl_jax.agents import get_spec
+from wrl_jax.agents.base import config_from_dict
+from wrl_jax.cli import train as cli_train
+from wrl_jax.cli.options import EnvOptions, build
+from wrl_jax.envs.continuous.evaluation import evaluate_episodes
+from wrl_jax.training import checkpoint
+
+WIDER = 1.5
+"""How much wider the test ranges are than the training ranges."""
+
+
+def conditions(params) -> dict:
+    """The three test conditions as params of the trained environment."""
+    half = (params.gain_high - params.gain_low) / 2
+    centre = (params.gain_high + params.gain_low) / 2
+    on = jnp.asarray(True)
+    return {
+        "nominal": params.replace(randomize=jnp.asarray(False)),
+        "1x": params.replace(randomize=on),
+        f"{WIDER:g}x": params.replace(randomize=on, gain_low=centre - WIDER * half, gain_high=centre + WIDER * half,
+                                      actuation_noise=WIDER * params.actuation_noise,
+                                      lidar_noise=WIDER * params.lidar_noise,
+                                      lidar_dropout=WIDER * params.lidar_dropout),
+    }
+
+
+def train(env_name: str, out: Path, total_timesteps: int, num_seeds: int, randomize: bool) -> float:
+    """``train_ppo.py``'s command in this process; returns its wall seconds (0 when the run was already there)."""
+    if (out / "summary.json").exists():
+        return 0.0
+    argv = ["--env", env_name, "--total-timesteps", str(total_timesteps), "--num-seeds", str(num_seeds),
+            "--randomize", str(randomize), "--out", str(out), "--no-progress", "--no-plot", "--overwrite"]
+    start = time.perf_counter()
+    with contextlib.redirect_stdout(io.StringIO()):
+        code = cli_train.main("ppo", argv)
+    if code != 0:
+        raise SystemExit(f"training failed ({code}): python train_ppo.py {' '.join(argv)}")
+    return time.perf_counter() - start
+
+
+def evaluate(run_dir: Path, rounds: int) -> dict:
+    """Every seed of a finished run under every condition: delivered share and collisions per episode."""
+    meta = checkpoint.read_metadata(run_dir)
+    spec = get_spec(meta["algo"])
+    algo = build(spec, config_from_dict(spec.config_cls, meta["config"]),
+                 EnvOptions(env=meta["env"], **meta.get("env_overrides", {})))
+    trainer = training.Trainer(algo, meta["seeds"], training.LoopConfig(progress=False))
+    runners, _ = checkpoint.load(run_dir, trainer.template())
+    networks = jax.vmap(algo.network_params)(runners)
+    env = algo.env
+
+    @jax.jit
+    def episodes(networks, params):
+        def one(network):
+            result = evaluate_episodes(lambda obs, state: algo.greedy_action(network, obs), env, params, rounds)
+            valid = result.valid.astype(jnp.float32)
+            return ((result.delivered * valid).sum() / valid.sum(),
+                    (result.collisions * valid).sum() / valid.sum())
+        return jax.vmap(one)(networks)
+
+    out = {}
+    for name, params in conditions(algo.env_params).items():
+        delivered, collisions = jax.device_get(episodes(networks, params))
+        out[name] = {"delivered_per_seed": [round(float(x), 4) for x in delivered],
+                     "delivered": round(float(np.mean(delivered)), 4),
+                     "collisions_per_episode": round(float(np.mean(collisions)), 3)}
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env", default="Continuous-Warehouse-8x8-v0")
+    parser.add_argument("--total-timesteps", type=int, default=1_000_000)
+    parser.add_argument("--num-seeds", type=int, default=4)
+    parser.add_argument("--rounds", type=int, default=16, help="episodes per item and condition")
+    parser.add_argument("--out", type=Path, default=Path("runs/randomization"))
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args(argv)
+    if args.rounds < 1 or args.num_seeds < 1 or args.total_timesteps < 1:
+        parser.error("--rounds, --num-seeds and --total-timesteps must be positive")
+    report = {"env": args.env, "total_timesteps": args.total_timesteps, "num_seeds": args.num_seeds,
+              "rounds": args.rounds, "wider": WIDER, "arms": {}}
+    for randomize in (True, False):
+        arm = "randomized" if randomize else "nominal"
+        wall = train(args.env, args.out / arm, args.total_timesteps, args.num_seeds, randomize)
+        report["arms"][arm] = {"train_wall_s": round(wall, 1), **evaluate(args.out / arm, args.rounds)}
+    print(f"{args.env}, PPO {args.total_timesteps:,} steps x {args.num_seeds} seeds, {args.rounds} rounds per item")
+    print("| trained | nominal | 1x | 1.5x | loss 1x -> 1.5x (points) | collisions / ep. at 1.5x |")
+    print("|---|---|---|---|---|---|")
+    for arm, res in report["arms"].items():
+        wide = res[f"{WIDER:g}x"]
+        loss = 100 * (res["1x"]["delivered"] - wide["delivered"])
+        print(f"| {arm} | {100 * res['nominal']['delivered']:.1f} % | {100 * res['1x']['delivered']:.1f} % | "
+              f"{100 * wide['delivered']:.1f} % | {loss:+.1f} | {wide['collisions_per_episode']:.2f} |")
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(report, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
