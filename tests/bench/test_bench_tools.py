@@ -4,7 +4,8 @@
 are measured in) and, with ``--baseline``, times an older copy of the env beside the current one;
 ``--trace`` lists the compiled program's fusions by share of traced time (``bench/xla_trace.py``);
 ``pibt_profile.py --baseline`` times an older planners.py and refuses one that plans other moves;
-``observation_floor.py`` sums exactly the observation-sized arrays it writes.
+``observation_floor.py`` sums exactly the observation-sized arrays it writes; ``continuous_randomization.py``
+widens the randomization ranges as it says.
 """
 
 from __future__ import annotations
@@ -71,3 +72,24 @@ def test_observation_floor_sums_what_it_writes_and_splits_over_devices():
     assert done.returncode == 0, done.stderr
     rows = json.loads(done.stdout.strip().splitlines()[-1])
     assert rows[0]["devices"] == 2 and rows[0]["robot_steps_per_s"] > 0
+
+
+def test_randomization_bench_widens_every_range_around_its_centre():
+    """``bench/continuous_randomization.py``'s test conditions: off, the contract's ranges, each 1.5x as wide."""
+    import numpy as np
+
+    sys.path.insert(0, str(ROOT / "bench"))
+    import continuous_randomization as bench
+
+    import wrl_jax
+
+    _, params = wrl_jax.make("Continuous-Warehouse-8x8-v0")
+    cases = bench.conditions(params)
+    assert list(cases) == ["nominal", "1x", "1.5x"]
+    assert not bool(cases["nominal"].randomize) and bool(cases["1x"].randomize) and bool(cases["1.5x"].randomize)
+    wide = cases["1.5x"]
+    np.testing.assert_allclose([float(wide.gain_low), float(wide.gain_high)], [0.7, 1.3], rtol=1e-6)
+    for name, value in (("actuation_noise", 0.075), ("lidar_noise", 0.03), ("lidar_dropout", 0.03)):
+        np.testing.assert_allclose(float(getattr(wide, name)), value, rtol=1e-6)
+    assert float(wide.start_jitter) == float(params.start_jitter)  # capped by the start cell: see the bench
+    assert float(cases["1x"].gain_low) == float(params.gain_low)
