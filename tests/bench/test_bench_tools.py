@@ -1,4 +1,4 @@
-"""The fleet speed tools of ``bench/`` run and compare what they say they compare (tiny sizes: a smoke test).
+"""The tools of ``bench/`` run and compare what they say they compare (tiny sizes: a smoke test).
 
 ``fleet_step_profile.py --devices N`` splits the batch over N host devices (the split the throughput aims
 are measured in) and, with ``--baseline``, times an older copy of the env beside the current one;
