@@ -249,3 +249,14 @@ def only_where(pred: jax.Array, compute, operand: jax.Array, otherwise):
         return jnp.zeros((), dtype=bool), data + np.asarray(1, dtype=data.dtype), compute(data)
 
     return jax.lax.while_loop(lambda carry: carry[0], body, (jnp.asarray(pred), operand, otherwise))[2]
+
+
+def materialise(value: jax.Array) -> jax.Array:
+    """``value`` (int or bool), computed once into its own buffer: a max with the dtype's least value.
+
+    Why: XLA's CPU fusion copies a cheap producer into every consumer (and into every element of one
+    that broadcasts it); a long chain (threefry, the queue pass) was rebuilt many times per step.
+    A reduction is not copied into consumers that reuse it; ``optimization_barrier`` is dropped on CPU.
+    """
+    least = False if value.dtype == jnp.bool_ else jnp.iinfo(value.dtype).min
+    return jnp.max(jnp.stack([value, jnp.full_like(value, least)]), axis=0)

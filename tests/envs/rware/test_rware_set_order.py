@@ -17,12 +17,15 @@ import numpy as np
 import pytest
 
 from wrl_jax.envs.rware.set_order import (
+    NEIGHBOURS,
     component_rank,
     copy_positions,
     first_precedes_in_triple,
     longest_set_order_component,
     probe_table,
     set_positions,
+    triple_direction,
+    triple_table,
     tuple_hash,
 )
 
@@ -243,3 +246,27 @@ def test_probe_table_is_pythons_hash_and_first_precedes_in_triple_is_pythons_ord
         expected.append(copied.index(first) < copied.index(last))
     assert ours.tolist() == expected
     assert 0.2 < np.mean(expected) < 0.8  # both outcomes occur
+
+
+def test_triple_table_is_pythons_order_for_every_cell_and_pair_of_neighbours():
+    """What a 4-agent step reads: for each cell and two of its neighbours (earlier agent's, later agent's), whether the
+    earlier one comes first in the copied set; checked against CPython's own sets on an oblong grid, every entry."""
+    height, width = 7, 11
+    table = triple_table(height, width)
+    assert table.shape == (height * width, 4, 4)
+    checked = []
+    for middle_cell in range(height * width):
+        x, y = middle_cell % width, middle_cell // width
+        for a, (ax, ay) in enumerate(NEIGHBOURS):
+            for b, (bx, by) in enumerate(NEIGHBOURS):
+                first, last = (x + ax, y + ay), (x + bx, y + by)
+                if a == b or not all(0 <= px < width and 0 <= py < height for px, py in (first, last)):
+                    continue
+                filled = set()
+                for key in (first, (x, y), last):
+                    filled.add(key)
+                copied = list(set(iter(filled)))
+                assert table[middle_cell, a, b] == (copied.index(first) < copied.index(last)), (x, y, a, b)
+                assert int(triple_direction(jnp.int32(first[1] * width + first[0]), jnp.int32(middle_cell), width)) == a
+                checked.append(bool(table[middle_cell, a, b]))
+    assert len(checked) > 600 and 0.2 < np.mean(checked) < 0.8  # both outcomes occur

@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from wrl_jax.core.environment import materialise
 from wrl_jax.core.random import MAX_MODULUS, random_words, split_key, threefry_key_data, words_modulo
 from wrl_jax.envs.rware.conflicts import cancelled_moves, forward_targets, resolve_moves
 from wrl_jax.envs.rware.types import (
@@ -62,17 +63,6 @@ def ids_at(cells: jax.Array, positions: jax.Array, keys: jax.Array, bound: int =
         piece = slice(start, start + REDUCE_LIMIT)
         found = jnp.maximum(found, jnp.max(jnp.where(cells[..., None] == positions[piece], keys[piece], 0), axis=-1))
     return found.astype(jnp.int32)
-
-
-def materialise(value: jax.Array) -> jax.Array:
-    """``value`` (int or bool), computed once into its own buffer: a max with the dtype's least value.
-
-    Why: XLA's CPU fusion copies a cheap producer into every consumer (and into every element of one
-    that broadcasts it); a long chain (threefry, the queue pass) was rebuilt many times per step.
-    A reduction is not copied into consumers that reuse it; ``optimization_barrier`` is dropped on CPU.
-    """
-    least = False if value.dtype == jnp.bool_ else jnp.iinfo(value.dtype).min
-    return jnp.max(jnp.stack([value, jnp.full_like(value, least)]), axis=0)
 
 
 def requested_mask(queue: jax.Array, num_shelves: int) -> jax.Array:

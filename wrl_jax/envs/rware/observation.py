@@ -21,7 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from wrl_jax.envs.rware.dynamics import ids_at, materialise, requested_mask
+from wrl_jax.core.environment import materialise
+from wrl_jax.envs.rware.dynamics import ids_at, requested_mask
 from wrl_jax.envs.rware.observation_image import (
     DEFAULT_IMAGE_LAYERS,
     FEATURES_SIZE,

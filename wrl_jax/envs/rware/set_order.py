@@ -13,7 +13,8 @@ tuples, so their order is a hash-table layout. This module computes it without P
   ``8 -> 32 -> 128`` once ``fill * 5 >= mask * 3``, re-inserting in old-table order);
 - :func:`component_rank`: the BFS that orders ``c``, then both sets, per component;
 - :func:`probe_table` and :func:`first_precedes_in_triple`: the one case up to 4 agents (three keys
-  in an 8-slot table), written out elementwise from probe sequences computed with Python's ``hash``.
+  in an 8-slot table), written out elementwise from probe sequences computed with Python's ``hash``;
+  :func:`triple_table` evaluates it once per grid for every such case, so a step only looks it up.
 
 Every loop is a ``lax.while_loop`` whose trip count is zero when no component needs set order:
 BFS levels, then one trip per probe run, all of an environment's components in a row. Under
@@ -22,6 +23,8 @@ trips). The caller (:mod:`~wrl_jax.envs.rware.conflicts`) runs it only on steps 
 """
 
 from __future__ import annotations
+
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -144,6 +147,39 @@ def first_precedes_in_triple(first: jax.Array, middle: jax.Array, last: jax.Arra
         occupied = occupied | (jnp.uint32(1) << slot.astype(jnp.uint32))
         copied = [jnp.where(order[i] == turn, slot, copied[i]) for i in range(3)]
     return copied[0] < copied[2]
+
+
+NEIGHBOURS = ((1, 0), (-1, 0), (0, 1), (0, -1))
+"""The four cells next to a cell, as ``(dx, dy)``: the index of :func:`triple_table`'s directions."""
+
+
+@functools.lru_cache(maxsize=None)
+def triple_table(height: int, width: int) -> np.ndarray:
+    """``(H W, 4, 4)`` bool: :func:`first_precedes_in_triple` for every case two agents can make.
+
+    ``[t, a, b]``: the earlier agent's cell is the neighbour ``a`` of the empty cell ``t``, the later
+    agent's the neighbour ``b``. Up to 4 agents that is the only set-order tie, so the step reads one
+    entry of a table computed once per grid at trace time, instead of emulating the sets per step
+    (entries off the grid or with ``a == b`` are never read). Exactly the emulation's result.
+    """
+    probes = probe_table(height, width)
+    t, a, b = np.meshgrid(np.arange(height * width), np.arange(4), np.arange(4), indexing="ij")
+    x, y = t % width, t // width
+    shift = np.array(NEIGHBOURS)
+
+    def neighbour(d):
+        return np.clip(y + shift[d, 1], 0, height - 1) * width + np.clip(x + shift[d, 0], 0, width - 1)
+
+    with jax.ensure_compile_time_eval():
+        first = first_precedes_in_triple(jnp.asarray(probes[neighbour(a)]), jnp.asarray(probes[t]),
+                                         jnp.asarray(probes[neighbour(b)]))
+    return np.asarray(first, bool)
+
+
+def triple_direction(cell: jax.Array, centre: jax.Array, width: int) -> jax.Array:
+    """Which of :data:`NEIGHBOURS` ``cell`` is of ``centre`` (cells ``y W + x``; 3 for anything else)."""
+    delta = cell - centre
+    return jnp.where(delta == 1, 0, jnp.where(delta == -1, 1, jnp.where(delta == width, 2, 3))).astype(jnp.int32)
 
 
 def _free_slots(occupied: jax.Array, slot: jax.Array, mask: int) -> jax.Array:
