@@ -15,7 +15,8 @@ policy loses at most 2 points of delivery from ``1x`` to ``1.5x``.
 
 Usage: ``python bench/continuous_randomization.py [--env Continuous-Warehouse-8x8-v0] [--total-timesteps 1000000]
 [--num-seeds 4] [--rounds 16] [--out runs/randomization] [--json bench/results/continuous/randomization.json]``.
-A run directory that already holds a finished run is evaluated again, not retrained.
+The two runs go to ``--out``/randomized and ``--out``/plain; a finished run there with the same settings is
+evaluated again, not retrained (other settings: refused).
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ import argparse
 import contextlib
 import io
 import json
-import time
 from pathlib import Path
 
 import jax
@@ -59,17 +59,26 @@ def conditions(params) -> dict:
 
 
 def train(env_name: str, out: Path, total_timesteps: int, num_seeds: int, randomize: bool) -> float:
-    """``train_ppo.py``'s command in this process; returns its wall seconds (0 when the run was already there)."""
+    """``train_ppo.py``'s command in this process; returns the run's wall seconds (from its summary).
+
+    A finished run in ``out`` is reused only if it is this one (environment, randomization, steps, seeds).
+    """
     if (out / "summary.json").exists():
-        return 0.0
+        meta = json.loads((out / "config.json").read_text())
+        found = (meta["env"], bool(meta["env_overrides"].get("randomize", False)), meta["config"]["total_timesteps"],
+                 len(meta["seeds"]))
+        wanted = (env_name, randomize, total_timesteps, num_seeds)
+        if found != wanted:
+            raise SystemExit(f"{out} holds another run ((env, randomize, steps, seeds) = {found}, wanted {wanted}): "
+                             f"choose another --out")
+        return float(json.loads((out / "summary.json").read_text())["wall_seconds"])
     argv = ["--env", env_name, "--total-timesteps", str(total_timesteps), "--num-seeds", str(num_seeds),
             "--randomize", str(randomize), "--out", str(out), "--no-progress", "--no-plot", "--overwrite"]
-    start = time.perf_counter()
     with contextlib.redirect_stdout(io.StringIO()):
         code = cli_train.main("ppo", argv)
     if code != 0:
         raise SystemExit(f"training failed ({code}): python train_ppo.py {' '.join(argv)}")
-    return time.perf_counter() - start
+    return float(json.loads((out / "summary.json").read_text())["wall_seconds"])
 
 
 def evaluate(run_dir: Path, rounds: int) -> dict:
@@ -115,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     report = {"env": args.env, "total_timesteps": args.total_timesteps, "num_seeds": args.num_seeds,
               "rounds": args.rounds, "wider": WIDER, "arms": {}}
     for randomize in (True, False):
-        arm = "randomized" if randomize else "nominal"
+        arm = "randomized" if randomize else "plain"
         wall = train(args.env, args.out / arm, args.total_timesteps, args.num_seeds, randomize)
         report["arms"][arm] = {"train_wall_s": round(wall, 1), **evaluate(args.out / arm, args.rounds)}
     print(f"{args.env}, PPO {args.total_timesteps:,} steps x {args.num_seeds} seeds, {args.rounds} rounds per item")

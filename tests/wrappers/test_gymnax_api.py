@@ -302,6 +302,8 @@ def test_env_survives_deepcopy_and_pickle(case, clone):
 
 # ---------------------------------------------------------------- legacy view
 def test_legacy_view_returns_five_values(case):
+    """The view repacks the 6-value step (its environment is :class:`_SameStep`, which checks the arguments it is
+    called with): each value must land where the 5-value API puts it, with both flags in ``info``."""
     _, _, _, trace = case
     assert trace["arity"]["legacy"] == 5
     assert trace["legacy_done"].dtype == np.bool_

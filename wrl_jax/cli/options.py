@@ -67,7 +67,7 @@ class EnvOptions:
     observe_target: bool | None = None
     """continuous environments: the target seen from the robot (offset, distance, bearing) after the contract's values"""
     randomize: bool | None = None
-    """continuous environments: domain randomization (gains, actuation and lidar noise, start jitter) per episode"""
+    """continuous environments: domain randomization (gains, start pose per episode; actuation, lidar noise per step)"""
     reward_type: str | None = None
     """rware environments: individual (default), global or two_stage"""
     sensor_range: int | None = None

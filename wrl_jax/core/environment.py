@@ -255,8 +255,11 @@ def materialise(value: jax.Array) -> jax.Array:
     """``value`` (int or bool), computed once into its own buffer: a max with the dtype's least value.
 
     Why: XLA's CPU fusion copies a cheap producer into every consumer (and into every element of one
-    that broadcasts it); a long chain (threefry, the queue pass) was rebuilt many times per step.
-    A reduction is not copied into consumers that reuse it; ``optimization_barrier`` is dropped on CPU.
+    that broadcasts it or gathers with it), so a long chain read by many operations is rebuilt many
+    times per step. A reduction is not copied into consumers that reuse it; ``optimization_barrier``
+    is dropped on CPU.
     """
+    if value.dtype != jnp.bool_ and not jnp.issubdtype(value.dtype, jnp.integer):
+        raise TypeError(f"materialise takes an integer or bool array, got {value.dtype}")
     least = False if value.dtype == jnp.bool_ else jnp.iinfo(value.dtype).min
     return jnp.max(jnp.stack([value, jnp.full_like(value, least)]), axis=0)

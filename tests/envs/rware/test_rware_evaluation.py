@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import wrl_jax
+from wrl_jax.cli import options as cli_options
 from wrl_jax.cli import train as cli_train
 from wrl_jax.core import registry
 from wrl_jax.envs.rware import evaluation, make_rware
@@ -118,9 +118,11 @@ def test_train_ppo_on_rware_reports_the_hooks_numbers(tmp_path):
     overrides = json.loads((out / "config.json").read_text())["env_overrides"]
     assert overrides == {"reward_type": "global", "sensor_range": 2, "max_inactivity_steps": 400,
                          "tie_order": "insertion"}
-    env, params = wrl_jax.make("rware-tiny-2ag-v2", **overrides)  # what the run trained on
-    assert env.obs_size == 8 + 25 * 7 and env.tie_order == "insertion"
-    assert int(params.max_inactivity_steps) == 400 and int(params.reward_type) == reward_code("global")
+    command = cli_options.parse("ppo", argv)  # the command's own path from flags to its learner
+    algo = cli_options.build(command.spec, command.config, command.env)
+    assert algo.env.obs_size == 8 + 25 * 7 and algo.env.tie_order == "insertion"
+    assert int(algo.env_params.max_inactivity_steps) == 400
+    assert int(algo.env_params.reward_type) == reward_code("global")
     assert "episode return, all agents" in printed.getvalue()
     rows = (out / "metrics.csv").read_text().splitlines()
     assert {"eval_return", "eval_solved", "train_throughput"} <= set(rows[0].split(","))

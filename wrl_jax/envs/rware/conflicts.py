@@ -98,8 +98,9 @@ def _tie_rank(start: jax.Array, target: jax.Array, width: int, tied: jax.Array, 
 def resolve_moves(start: jax.Array, target: jax.Array, *, grid_size: tuple[int, int], tie_order: str) -> jax.Array:
     """The committed agents ``(N,)`` bool of rware's graph, from flat start and target cells ``(N,)`` int32.
 
-    Cancelled and stationary agents must come with ``target == start`` (their self-loop). A
-    committed agent moves to its target; an uncommitted one (only ever a mover) stays.
+    Cancelled and stationary agents must come with ``target == start`` (their self-loop); every other
+    target is one of the start's four neighbours (rware moves one cell: the 4-agent set-order lookup
+    relies on it). A committed agent moves to its target; an uncommitted one (only ever a mover) stays.
     ``grid_size`` is ``(H, W)``: cells are ``y W + x``, and ``tie_order="set"`` hashes ``(x, y)``.
     """
     check_tie_order(tie_order)
@@ -227,7 +228,7 @@ def _small_pair_ranks(cell: list, goal: list, successor: list, depth: list, rank
     pairs = [(i, j) for i in range(count) for j in range(i + 1, count)]
     found = [empty[i] & (goal[i] == goal[j]) & (depth[i] == 0) & (depth[j] == 0) & (2 * 3 < nodes) for i, j in pairs]
     # The flags, the lookup and the ranks are materialised: fused into their consumers, XLA rebuilt the graph
-    # above them per use and per element (the set order cost 0.13x of a step with insertion order, now 0.8x).
+    # above them per use and per element (bench/results/rware/NOTES.md has the measurement).
     packed = materialise(sum(hit.astype(jnp.int32) << k for k, hit in enumerate(found)))
     found = [((packed >> k) & 1) == 1 for k in range(len(pairs))]
     # At most one such pair: the three cells are picked by sums; the set order is one entry of a table.

@@ -173,13 +173,19 @@ def triple_table(height: int, width: int) -> np.ndarray:
     with jax.ensure_compile_time_eval():
         first = first_precedes_in_triple(jnp.asarray(probes[neighbour(a)]), jnp.asarray(probes[t]),
                                          jnp.asarray(probes[neighbour(b)]))
-    return np.asarray(first, bool)
+    table = np.array(first, bool)
+    table.flags.writeable = False  # shared by every caller (cached)
+    return table
 
 
 def triple_direction(cell: jax.Array, centre: jax.Array, width: int) -> jax.Array:
-    """Which of :data:`NEIGHBOURS` ``cell`` is of ``centre`` (cells ``y W + x``; 3 for anything else)."""
-    delta = cell - centre
-    return jnp.where(delta == 1, 0, jnp.where(delta == -1, 1, jnp.where(delta == width, 2, 3))).astype(jnp.int32)
+    """Which of :data:`NEIGHBOURS` ``cell`` is of ``centre`` (cells ``y W + x``; 3 for anything else).
+
+    From the coordinates, not the flat difference: on a grid one cell wide ``+1`` is the cell below.
+    """
+    dx = cell % width - centre % width
+    dy = cell // width - centre // width
+    return jnp.where(dx == 1, 0, jnp.where(dx == -1, 1, jnp.where(dy == 1, 2, 3))).astype(jnp.int32)
 
 
 def _free_slots(occupied: jax.Array, slot: jax.Array, mask: int) -> jax.Array:
