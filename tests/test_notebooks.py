@@ -19,6 +19,7 @@ NOTEBOOKS = Path(__file__).resolve().parents[1] / "notebooks"
 def test_notebook_runs(name, tmp_path, monkeypatch):
     monkeypatch.setenv("WRL_NOTEBOOK_QUICK", "1")  # the kernel inherits this process's environment
     monkeypatch.setenv("MPLBACKEND", "Agg")
+    monkeypatch.setenv("TMPDIR", str(tmp_path))  # the notebooks' output folders (tempfile) go with the test's
     # The kernel runs in tmp_path: make the checkout importable whether or not it is pip-installed.
     root = str(NOTEBOOKS.parent)
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH", "")) if p))

@@ -66,7 +66,7 @@ def test_bad_actions_and_names_fail_clearly():
         ContinuousGymEnv("Warehouse-8x8-v0")
 
 
-def test_stable_baselines3_sac_trains_on_it():
+def test_stable_baselines3_sac_trains_on_it(tmp_path):
     sb3 = pytest.importorskip("stable_baselines3")
     import torch
 
@@ -74,6 +74,7 @@ def test_stable_baselines3_sac_trains_on_it():
     env = gym.make("wrl_jax/Continuous-Warehouse-8x8-v0")
     model = sb3.SAC("MlpPolicy", env, learning_starts=50, batch_size=32, policy_kwargs={"net_arch": [32, 32]},
                     seed=0, verbose=0)
+    model.set_logger(sb3.common.logger.configure(str(tmp_path), []))  # else a log folder in the system temp dir
     model.learn(total_timesteps=120)
     assert model.num_timesteps == 120 and model.replay_buffer.size() == 120
     action, _ = model.predict(env.reset(seed=0)[0], deterministic=True)
