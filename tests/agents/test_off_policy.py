@@ -156,6 +156,7 @@ def test_discrete_environments_and_wrong_configs_are_refused(corridor):
     with pytest.raises(TypeError, match="TD3Config"):
         TD3(SAC_DEFAULT, env, params)
     assert TD3_DEFAULT.hyper().policy_noise == pytest.approx(0.2)
+    assert TD3_DEFAULT.hyper().exploration_noise == pytest.approx(0.3)  # the continuous warehouse's (NOTES)
 
 
 def test_flops_count_both_phases(corridor):

@@ -212,8 +212,9 @@ SAC_DEFAULT = SACConfig(
 TD3_DEFAULT = TD3Config(
     num_envs=16, train_freq=1, gradient_steps=2, batch_size=256, hidden_sizes=(128, 128), buffer_size=200_000,
     learning_starts=5_000, learning_rate=1e-3, gamma=0.99, tau=0.005, reward_scale=0.1, total_timesteps=200_000,
+    exploration_noise=0.3,  # 0.1 (the TD3 paper's) left the 8x8 map's far items unfound: 65 % against 97.5 %
 )
-"""Ours for the continuous warehouse, the same loop as SAC's default."""
+"""Ours for the continuous warehouse, the same loop as SAC's default (bench/results/continuous/NOTES.md)."""
 
 CONTINUOUS_NAMES = (
     "Continuous-Warehouse-8x8-v0", "Continuous-Warehouse-12x12-v0", "Continuous-Warehouse-12x12-Dynamic-v0")
