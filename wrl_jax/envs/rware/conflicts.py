@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 
 from wrl_jax.core.environment import materialise, only_where
-from wrl_jax.envs.rware.set_order import component_rank, triple_direction, triple_table
+from wrl_jax.envs.rware.set_order import component_rank, triple_index, triple_table
 from wrl_jax.envs.rware.types import DOWN, FORWARD, LEFT_DIR, RIGHT_DIR, UP
 
 
@@ -234,9 +234,8 @@ def _small_pair_ranks(cell: list, goal: list, successor: list, depth: list, rank
     # At most one such pair: the three cells are picked by sums; the set order is one entry of a table.
     first, middle = [sum(jnp.where(hit, values[i], 0) for hit, (i, _) in zip(found, pairs)) for values in (cell, goal)]
     later = sum(jnp.where(hit, cell[j], 0) for hit, (_, j) in zip(found, pairs))
-    width = grid_size[1]
     table = jnp.asarray(triple_table(*grid_size).reshape(-1))  # every case, from Python's own hash, at trace time
-    index = middle * 16 + triple_direction(first, middle, width) * 4 + triple_direction(later, middle, width)
+    index = triple_index(first, middle, later, grid_size[1])
     i_first = materialise(jnp.take(table, materialise(index), mode="clip"))
     rank = list(rank)
     for hit, (i, j) in zip(found, pairs):

@@ -178,6 +178,11 @@ def triple_table(height: int, width: int) -> np.ndarray:
     return table
 
 
+def triple_index(first: jax.Array, middle: jax.Array, later: jax.Array, width: int) -> jax.Array:
+    """The flat index into ``triple_table(H, W).reshape(-1)`` of the case ``(middle, first's side, later's side)``."""
+    return middle * 16 + triple_direction(first, middle, width) * 4 + triple_direction(later, middle, width)
+
+
 def triple_direction(cell: jax.Array, centre: jax.Array, width: int) -> jax.Array:
     """Which of :data:`NEIGHBOURS` ``cell`` is of ``centre`` (cells ``y W + x``; 3 for anything else).
 
