@@ -8,10 +8,6 @@ import copy
 import dataclasses
 import functools
 import json
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -25,8 +21,8 @@ from wrl_jax.envs.warehouse import evaluation
 from wrl_jax.agents.dqn import DQN, make_algorithm
 from wrl_jax.agents.dqn_config import PRESETS, DQNConfig
 from wrl_jax.agents.replay import Transition
+from wrl_jax.cli import train as cli_train
 
-ROOT = Path(__file__).resolve().parents[2]
 
 SMALL_MAP = """
 S . 0
@@ -343,22 +339,10 @@ def test_presets():
 
 
 # ------------------------------------------------------------------------ CLI
-def test_cli_smoke(tmp_path):
+def test_cli_smoke(tmp_path, capsys):
+    """``train_dqn.py``'s main in this process (the scripts' own start-up is tests/cli/test_cli.py's)."""
     out = tmp_path / "run"
-    cmd = [
-        sys.executable,
-        str(ROOT / "train_dqn.py"),
-        "--total-timesteps",
-        "512",
-        "--num-seeds",
-        "2",
-        "--out",
-        str(out),
-        "--no-progress",
-    ]
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert cli_train.main("dqn", ["--total-timesteps", "512", "--num-seeds", "2", "--out", str(out), "--no-progress"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     fields = ("algo", "env", "num_seeds", "total_timesteps", "compile_seconds", "train_seconds", "env_steps_per_second")
     for key in fields:
@@ -367,13 +351,10 @@ def test_cli_smoke(tmp_path):
     for key in ("success_rate", "mean_steps", "optimal_mean_steps", "collision_free_rate", "mean_return"):
         assert key in summary["eval"], key
     assert len(summary["eval"]["rows"]) == 2 * 10
-    assert "Task Completion Rate" in proc.stdout
+    assert "Task Completion Rate" in capsys.readouterr().out
 
 
-def test_cli_rejects_invalid_config_before_compiling(tmp_path):
-    cmd = [sys.executable, str(ROOT / "train_dqn.py"), "--gamma", "2", "--out", str(tmp_path / "bad")]
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
-    assert proc.returncode == 2
-    assert "gamma must be in [0, 1]" in proc.stdout + proc.stderr
+def test_cli_rejects_invalid_config_before_compiling(tmp_path, capsys):
+    assert cli_train.main("dqn", ["--gamma", "2", "--out", str(tmp_path / "bad")]) == 2
+    assert "gamma must be in [0, 1]" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()

@@ -15,6 +15,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -39,20 +41,21 @@ def test_step_profile_splits_over_devices_and_times_a_baseline():
     assert "ratio current/baseline" in done.stdout
 
 
-def test_pibt_profile_refuses_a_baseline_that_plans_other_moves(tmp_path):
+def test_pibt_profile_refuses_a_baseline_that_plans_other_moves(tmp_path, capsys):
+    sys.path.insert(0, str(ROOT / "bench" / "investigations"))
+    from pibt_profile import main as pibt_profile
+
     source = (ROOT / "wrl_jax/envs/fleet/planners.py").read_text()
     same = tmp_path / "same.py"
     same.write_text(source)
-    done = run_tool("bench/investigations/pibt_profile.py", "--robots", "2", "--batch", "32", "--repeats", "1", "--baseline", str(same))
-    assert done.returncode == 0, done.stderr
-    assert "same moves" in done.stdout
+    assert pibt_profile(["--robots", "2", "--batch", "32", "--repeats", "1", "--baseline", str(same)]) == 0
+    assert "same moves" in capsys.readouterr().out
     other = tmp_path / "other.py"  # a planner that always waits
     other.write_text(source.replace("    return pibt_choices(candidate_ids(pos, size), cand_dist, priority)",
                                     "    return jnp.full(pos.shape[0], WAIT, dtype=jnp.int32)"))
     assert other.read_text() != source
-    done = run_tool("bench/investigations/pibt_profile.py", "--robots", "2", "--batch", "32", "--repeats", "1", "--baseline", str(other))
-    assert done.returncode != 0
-    assert "plans other moves" in done.stderr
+    with pytest.raises(AssertionError, match="plans other moves"):
+        pibt_profile(["--robots", "2", "--batch", "32", "--repeats", "1", "--baseline", str(other)])
 
 
 def test_observation_floor_sums_what_it_writes_and_splits_over_devices():

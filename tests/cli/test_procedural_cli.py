@@ -11,9 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -27,7 +24,6 @@ from wrl_jax.cli.options import EnvOptions, build
 from wrl_jax.envs.warehouse.layout import optimal_route_lengths, parse
 from wrl_jax.training import checkpoint
 
-REPO = Path(__file__).resolve().parents[2]
 SMALL_ASCII = "S . . #\n. # 0 .\n. . . G\n. . # .\n"
 MOVINGAI = "type octile\nheight 6\nwidth 9\nmap\n.........\n.@@@.@@@.\n.........\n.@@@.@@@.\n.........\nTT.......\n"
 
@@ -103,17 +99,14 @@ def test_evaluate_refuses_a_layout_larger_than_the_runs_observation(procedural_r
     assert f"{broken}: unknown character '?'" in capsys.readouterr().err
 
 
-def test_evaluate_refuses_layouts_for_a_run_of_another_environment(tmp_path, layout_files):
+def test_evaluate_refuses_layouts_for_a_run_of_another_environment(tmp_path, layout_files, capsys):
     run = tmp_path / "fleet-run"
     checkpoint.save(run, {"x": np.zeros(1, np.float32)},
                     {"algo": "ppo", "env": "Fleet-12x12-v0", "config": {}, "seeds": [0], "updates_done": 0})
-    done = subprocess.run(
-        [sys.executable, "-m", "wrl_jax.evaluate", "--run", str(run), "--layout", str(layout_files["small"])],
-        cwd=REPO, capture_output=True, text=True, timeout=120, check=False,
-    )  # fmt: skip
-    assert done.returncode == 2
-    assert "needs a run of a single-robot layout environment" in done.stderr
-    assert "Fleet-12x12-v0 (family 'fleet')" in done.stderr
+    assert cli_evaluate.evaluate_main(["--run", str(run), "--layout", str(layout_files["small"])]) == 2
+    err = capsys.readouterr().err
+    assert "needs a run of a single-robot layout environment" in err
+    assert "Fleet-12x12-v0 (family 'fleet')" in err
 
 
 def test_the_procedural_command_splits_the_cpu_unless_told(tmp_path):

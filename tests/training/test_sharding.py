@@ -10,8 +10,7 @@ What is compared, and why not everything bitwise: XLA on CPU may choose a
 different reduction kernel for a different batch shape, so a seed trained in a
 batch of 4 and in a batch of 2 can differ in the last bits (see docs/scale.md).
 Sharding the seed axis of a batch of 4 over 2 devices runs batches of 2, so it is
-compared *bit for bit* with the two single-device batches of 2 it consists of,
-and with a tight tolerance with the single-device batch of 4. That holds for
+compared *bit for bit* with the two single-device batches of 2 it consists of. That holds for
 PPO; for DQN the per-device program is compiled inside a 2-device module and
 XLA's fusion choices there (e.g. where a multiply and an add become one fused
 multiply-add) can move a parameter by an ulp: its integer state (trajectories)
@@ -88,16 +87,15 @@ out["rows"] = len(sharded.rows)
 out["rows_equal_halves_bitwise"] = all(
     np.array_equal(row[k], metrics[k][seeds.index(row["seed"]), row["update"] - 1])
     for row in sharded.rows for k in metrics)
-whole = train(training.seed_keys(seeds))
-out["seed_sharded_vs_one_device_max_diff"] = max_diff(leaves(sharded.runners), leaves(whole[0]))
-out["keys_equal"] = bitwise(leaves(sharded.runners.key), leaves(whole[0].key))
-out["env_state_equal"] = bitwise(leaves(sharded.runners.env_state), leaves(whole[0].env_state))
-# Environment axis split over the 2 devices (each device: all 4 seeds, half of each seed's envs).
+# Environment axis split over the 2 devices (each device: all 4 seeds, half of each seed's envs), against the
+# single-device runs of the same seeds.
 env_sharded = training.run(sharding.ShardedTrainer(algo, seeds, LOOP, sharding.make_mesh(2, 2)))
 out["env_obs_spec"] = list(env_sharded.runners.obs.sharding.spec)
 out["env_obs_shard_shape"] = list(env_sharded.runners.obs.addressable_shards[0].data.shape)
-out["env_sharded_vs_one_device_max_diff"] = max_diff(leaves(env_sharded.runners), leaves(whole[0]))
-out["env_sharded_env_state_equal"] = bitwise(leaves(env_sharded.runners.env_state), leaves(whole[0].env_state))
+out["env_sharded_vs_one_device_max_diff"] = max_diff(leaves(env_sharded.runners), joined)
+out["env_sharded_env_state_equal"] = bitwise(leaves(env_sharded.runners.env_state),
+                                             [np.concatenate([a, b]) for a, b in zip(leaves(halves[0][0].env_state),
+                                                                                     leaves(halves[1][0].env_state))])
 """
 
 SWEEP_AXIS = """
@@ -178,12 +176,9 @@ def test_seed_and_env_axes_sharded_match_one_device(two_devices):
     # The state is really split: each device holds 2 of the 4 seeds' parameters.
     assert out["param_spec"] == ["seeds"]
     assert out["param_shard_rows"] == [2, 2] and out["param_shard_devices"] == 2
-    # Seed axis: bit for bit what the two single-device halves compute.
+    # Seed axis: bit for bit what the two single-device halves compute (keys, trajectories, parameters).
     assert out["seed_sharded_equals_halves_bitwise"]
     assert out["rows"] == 4 * TINY_UPDATES and out["rows_equal_halves_bitwise"]
-    # ... and the single-device batch of 4 up to float32 rounding of batched reductions.
-    assert out["seed_sharded_vs_one_device_max_diff"] < 1e-5
-    assert out["keys_equal"] and out["env_state_equal"]  # integer state: identical trajectories
     # Environment axis: each device steps half of every seed's environments.
     assert out["env_obs_spec"] == ["seeds", "envs"]
     assert out["env_obs_shard_shape"][:2] == [4, 4]  # 4 seeds x 8 envs -> 4 x 4 per device
