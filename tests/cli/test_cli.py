@@ -204,10 +204,12 @@ def test_shaping_flag_reaches_the_procedural_warehouse_and_is_refused_on_the_stu
 
 
 def test_continuous_learners_see_the_target_unless_told_otherwise(tmp_path):
-    """Every learner's command gives the continuous study maps ``observe_target``; the flag turns it off."""
-    for algo in ("ppo", "sac", "td3"):
-        command = cli_options.parse(algo, ["--env", "Continuous-Warehouse-8x8-v0", "--out", str(tmp_path / algo)])
-        assert command.env.overrides()["observe_target"] is True
+    """Every learner's command gives the continuous warehouse ``observe_target`` (the study maps and the
+    procedural variant); the flag turns it off."""
+    for algo, name in (("ppo", "Continuous-Warehouse-8x8-v0"), ("sac", "Continuous-Warehouse-12x12-v0"),
+                       ("td3", "Continuous-Warehouse-12x12-Dynamic-v0"), ("ppo", "Continuous-Procedural-Warehouse-v0")):
+        command = cli_options.parse(algo, ["--env", name, "--out", str(tmp_path / algo)])
+        assert command.env.overrides()["observe_target"] is True, name
     command = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--observe-target", "False",
                                         "--out", str(tmp_path / "off")])
     assert command.env.overrides().get("observe_target") is False

@@ -217,8 +217,10 @@ TD3_DEFAULT = TD3Config(
 """Ours for the continuous warehouse, the same loop as SAC's default (bench/results/continuous/NOTES.md)."""
 
 CONTINUOUS_NAMES = (
-    "Continuous-Warehouse-8x8-v0", "Continuous-Warehouse-12x12-v0", "Continuous-Warehouse-12x12-Dynamic-v0")
-"""The continuous warehouse's study maps, where every learner trains with :data:`CONTINUOUS_ENV_DEFAULTS`."""
+    "Continuous-Warehouse-8x8-v0", "Continuous-Warehouse-12x12-v0", "Continuous-Warehouse-12x12-Dynamic-v0",
+    "Continuous-Procedural-Warehouse-v0")
+"""The continuous warehouse's registered ids (the study's maps and the procedural variant), where every learner
+trains with :data:`CONTINUOUS_ENV_DEFAULTS`."""
 CONTINUOUS_ENV_DEFAULTS = {"observe_target": True}
 """What a training command gives the continuous warehouse unless its flags say otherwise: the target seen
 from the robot after the contract's observation (derived from it; docs/continuous.md has the measurements)."""

@@ -23,7 +23,8 @@ from wrl_jax.envs.procedural.layout_sets import LayoutSet, heldout_set, study_la
 from wrl_jax.envs.procedural.pool import pool_hashes
 from wrl_jax.envs.warehouse.layout import Layout
 
-SETTINGS = {"pool_size": 32, "seed": 3, "num_rays": 8, "num_obstacles": 2, "max_steps": 40}
+SETTINGS = {"pool_size": 32, "seed": 3, "num_rays": 8, "num_obstacles": 2, "max_steps": 40, "observe_target": True}
+"""The module's environment (with the target in the robot's frame, as the training commands give it)."""
 STEPS = 60
 
 
@@ -112,13 +113,14 @@ def test_batched_rollouts_draw_layouts_by_key_and_start_collision_free(env_param
 # ------------------------------------------------------------------ parity with the plain environment
 def test_a_transition_on_slot_k_is_the_plain_env_on_layout_k(env_params):
     """Same key, same state, same action: the plain environment built from the slot's layout (padding as
-    shelves) gives the same observation, state, reward, flags and info, bit for bit, over 60 steps
-    (a slot whose floor is smaller than the padded map, with its 2 moving obstacles, randomized)."""
+    shelves) gives the same observation (the target's features included), state, reward, flags and info,
+    bit for bit, over 60 steps (a slot whose floor is smaller than the padded map, with its 2 moving
+    obstacles, randomized)."""
     env, params = env_params
     slot = int(np.flatnonzero(np.asarray(params.pool.height) * np.asarray(params.pool.width) < 144)[0])
     plain, plain_params = make_continuous(slot_layout(params.pool, slot), max_steps=SETTINGS["max_steps"],
                                           num_rays=SETTINGS["num_rays"], num_obstacles=SETTINGS["num_obstacles"],
-                                          randomize=True)
+                                          randomize=True, observe_target=True)
 
     def run(key):
         reset_key, run_key = jax.random.split(key)

@@ -72,12 +72,13 @@ class ProceduralContinuousWarehouse(ContinuousWarehouse):
     """
 
     def __init__(self, params: ProceduralContinuousParams, generator: GeneratorConfig, pool_seed: int = 0,
-                 num_rays: int = 32, num_obstacles: int = 0, name: str = NAME):
-        super().__init__(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name)
+                 num_rays: int = 32, num_obstacles: int = 0, name: str = NAME, observe_target: bool = False):
+        super().__init__(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
+                         observe_target=observe_target)
         self.generator = generator
         self.pool_seed = int(pool_seed)
-        self.plain = ContinuousWarehouse(params, num_rays=num_rays, num_obstacles=num_obstacles,
-                                         name=name).without_default_params()
+        self.plain = ContinuousWarehouse(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
+                                         observe_target=observe_target).without_default_params()
 
     def static_config(self) -> tuple:
         return (*super().static_config(), self.generator)
@@ -96,13 +97,15 @@ class ProceduralContinuousWarehouse(ContinuousWarehouse):
         """A fresh episode on pool slot ``index``: the plain environment's reset on that layout, from ``key``."""
         layout = layout_params(params, index)
         obs, state = reset_core(self.reset_draws(key, layout), layout)
-        return obs, with_layout_index(state, index)
+        return self.observation(obs), with_layout_index(state, index)
 
     def transition(self, key: jax.Array, state: ProceduralContinuousState, action: Any,
                    params: ProceduralContinuousParams):
         self.check_action(action)
         layout = layout_params(params, state.layout_index)
-        return transition_core(state, action, self.step_draws(key, layout), layout)
+        obs, reached, reward, terminated, truncated, info = transition_core(state, action, self.step_draws(key, layout),
+                                                                            layout)
+        return self.observation(obs), reached, reward, terminated, truncated, info
 
     def is_terminated(self, state: ProceduralContinuousState, params: ProceduralContinuousParams) -> jax.Array:
         goal = layout_params(params, state.layout_index).goal
@@ -145,12 +148,13 @@ def _shape(name: str, value: Any) -> tuple[int, int]:
 def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shape: tuple[int, int] = (12, 12),
                                min_shape: tuple[int, int] = (8, 8), num_rays: int = 32, num_obstacles: int = 0,
                                max_steps: int | None = None, randomize: bool = True, name: str = NAME,
-                               **overrides: Any) -> tuple[ProceduralContinuousWarehouse, ProceduralContinuousParams]:
+                               observe_target: bool = False, **overrides: Any) -> tuple[ProceduralContinuousWarehouse, ProceduralContinuousParams]:
     """``(env, params)``: ``pool_size`` generated layouts of ``min_shape..max_shape`` from ``seed``.
 
     Overrides: any other :class:`GeneratorConfig` field (``family`` ``"mixture"`` by default,
     ``max_items`` 8, ``density``...) and any constant of the contract (``make_continuous``'s, e.g.
     ``dt``, ``collision_penalty``). ``max_steps`` defaults to :func:`default_max_steps` of ``max_shape``.
+    ``observe_target`` appends the target seen from the robot, as on the plain environment.
 
     Raises:
         ValueError: naming the setting: an unknown override, a pool size outside 1..65535, a
@@ -175,8 +179,8 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     max_steps = default_max_steps(max_shape) if max_steps is None else max_steps
     pool = generate_pool(jax.random.key(seed), pool_size, generator)
     # The template checks and builds every contract constant from slot 0 (the layout fields are then the pool's).
-    _, template = make_continuous(slot_layout(pool.layouts, 0), max_steps=max_steps, num_rays=num_rays,
-                                  num_obstacles=0, randomize=randomize, **overrides)
+    plain, template = make_continuous(slot_layout(pool.layouts, 0), max_steps=max_steps, num_rays=num_rays,
+                                      num_obstacles=0, randomize=randomize, observe_target=observe_target, **overrides)
     eligible = _obstacle_masks(pool.layouts)
     if num_obstacles:
         counts = np.asarray(eligible.sum(axis=(1, 2)))
@@ -188,5 +192,5 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     fields = {field.name: getattr(template, field.name) for field in dataclasses.fields(template)}
     params = layout_params(ProceduralContinuousParams(**fields, pool=pool.layouts, pool_obstacle_cells=eligible), 0)
     env = ProceduralContinuousWarehouse(params, generator, pool_seed=seed, num_rays=num_rays,
-                                        num_obstacles=num_obstacles, name=name)
+                                        num_obstacles=num_obstacles, name=name, observe_target=plain.observe_target)
     return env, params
