@@ -340,7 +340,7 @@ def test_presets():
 
 # ------------------------------------------------------------------------ CLI
 def test_cli_smoke(tmp_path, capsys):
-    """``train_dqn.py``'s main in this process (the scripts' own start-up is tests/cli/test_cli.py's)."""
+    """``train_dqn.py``'s main in this process (the script's own ``__main__`` block runs in tests/cli/test_cli.py)."""
     out = tmp_path / "run"
     assert cli_train.main("dqn", ["--total-timesteps", "512", "--num-seeds", "2", "--out", str(out), "--no-progress"]) == 0
     summary = json.loads((out / "summary.json").read_text())

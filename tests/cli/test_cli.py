@@ -127,12 +127,32 @@ def test_config_round_trip_through_json():
         config_from_dict(ppo_config.PPOConfig, {**data, "bogus": 1})
 
 
-def test_train_ppo_script_help():
-    out = subprocess.run([sys.executable, "train_ppo.py", "--help"], cwd=REPO, capture_output=True, text=True,
-                         timeout=120)
-    assert out.returncode == 0
-    for flag in ("--env", "--preset", "--num-seeds", "--total-timesteps", "--learning-rate", "--out", "--resume"):
-        assert flag in out.stdout
+SCRIPT_HELP = """
+import contextlib, io, json, runpy, sys
+printed = {}
+for script in ("train_ppo.py", "train_dqn.py", "train_sac.py", "train_td3.py"):
+    sys.argv, out = [script, "--help"], io.StringIO()
+    with contextlib.redirect_stdout(out):
+        try:
+            runpy.run_path(script, run_name="__main__")
+        except SystemExit as exit:
+            printed[script] = (exit.code, out.getvalue())
+print(json.dumps(printed))
+"""
+
+
+def test_the_training_scripts_run_their_command():
+    """Each ``train_*.py`` as ``python train_*.py --help`` runs it (its ``__main__`` block: XLA flags, then the
+    command's parser), in one fresh interpreter for the four."""
+    done = subprocess.run([sys.executable, "-c", SCRIPT_HELP], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    printed = json.loads(done.stdout.strip().splitlines()[-1])
+    assert set(printed) == {"train_ppo.py", "train_dqn.py", "train_sac.py", "train_td3.py"}
+    for script, (code, text) in printed.items():
+        assert code == 0, script
+        for flag in ("--env", "--preset", "--num-seeds", "--total-timesteps", "--learning-rate", "--out", "--resume"):
+            assert flag in text, (script, flag)
+    assert "--critic" in printed["train_ppo.py"][1] and "--buffer-size" in printed["train_dqn.py"][1]
 
 
 @pytest.mark.parametrize("script, argv, expected", [

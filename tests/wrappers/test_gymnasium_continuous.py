@@ -98,7 +98,7 @@ def test_rgb_array_rendering_draws_the_jax_state():
         env_render_passive_checker(env)
     frame = env.render()
     assert frame.shape == (96, 96, 3) and frame.dtype == np.uint8
-    expected = render_frame(env._state, env.params, lidar_from_obs(jax.numpy.asarray(obs), env.params), 8)
+    expected = render_frame(env._state, env.params, lidar_from_obs(jax.numpy.asarray(obs), env.params, env.jax_env.num_rays), 8)
     np.testing.assert_array_equal(frame, np.asarray(expected))
     assert tuple(frame[to_pixel(env._state.pos, 8)]) == COLORS["robot"]
     env.step(np.array([1.0, 0.5], np.float32))

@@ -47,9 +47,9 @@ def _step(env: ContinuousWarehouse, key: jax.Array, state: Any, action: jax.Arra
     return key, obs, state, reward, terminated, truncated, flags
 
 
-@functools.partial(jax.jit, static_argnums=0)
-def _render(cell_size: int, state: Any, obs: jax.Array, params: ContinuousParams) -> jax.Array:
-    return render_frame(state, params, lidar_from_obs(obs, params), cell_size)
+@functools.partial(jax.jit, static_argnums=(0, 1))
+def _render(cell_size: int, num_rays: int, state: Any, obs: jax.Array, params: ContinuousParams) -> jax.Array:
+    return render_frame(state, params, lidar_from_obs(obs, params, num_rays), cell_size)
 
 
 class ContinuousGymEnv(gym.Env):
@@ -110,4 +110,4 @@ class ContinuousGymEnv(gym.Env):
             return None
         if self._state is None:
             raise RuntimeError("call reset() before render()")
-        return np.array(_render(self.cell_size, self._state, self._obs, self.params))
+        return np.array(_render(self.cell_size, self.jax_env.num_rays, self._state, self._obs, self.params))

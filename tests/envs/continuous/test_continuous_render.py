@@ -85,8 +85,8 @@ def test_palette_extends_the_grid_renderers():
 
 
 def test_frame_shape_and_dtype(dynamic12):
-    _, params, obs, state = dynamic12
-    frame = render(state, params, lidar_from_obs(obs, params), CELL)
+    env, params, obs, state = dynamic12
+    frame = render(state, params, lidar_from_obs(obs, params, env.num_rays), CELL)
     assert frame.dtype == jnp.uint8 and frame.shape == frame_shape(params, CELL) == (12 * CELL, 12 * CELL, 3)
     assert render(state, params, None, 8).shape == (96, 96, 3)
     wide = params.replace(shelves=jnp.zeros((3, 5), bool))  # the renderer takes H != W as it comes
@@ -190,6 +190,18 @@ def test_ray_stops_at_an_obstacle(dynamic12):
     frame = render(moved, params, ranges, CELL)
     assert colour(frame, (7.85, 4.5 + 0.5 / CELL)) == COLORS["ray"]
     assert colour(frame, (7.75, 4.5 + 0.5 / CELL)) == COLORS["obstacle"]
+
+
+def test_lidar_from_obs_reads_the_rays_alone_when_the_target_follows_them():
+    """With ``observe_target`` the target's 5 values follow the rays: they are not drawn as rays."""
+    plain, params = make_continuous(OPEN_5X5, max_steps=60, num_rays=8)
+    target, _ = make_continuous(OPEN_5X5, max_steps=60, num_rays=8, observe_target=True)
+    obs, _ = plain.reset(jax.random.key(1), params)
+    seen, _ = target.reset(jax.random.key(1), params)
+    assert seen.shape == (11 + 8 + 5,)
+    rays = lidar_from_obs(seen, params, target.num_rays)
+    np.testing.assert_array_equal(rays, lidar_from_obs(obs, params, plain.num_rays))
+    np.testing.assert_allclose(rays, obs[11:] * params.lidar_range)
 
 
 def test_vmapped_frames_equal_single_frames(dynamic12):

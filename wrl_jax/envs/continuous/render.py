@@ -87,9 +87,13 @@ def to_pixel(point, cell_size: int = DEFAULT_CELL_SIZE) -> tuple[int, int]:
     return int(np.floor(y * cell_size)), int(np.floor(x * cell_size))
 
 
-def lidar_from_obs(obs: jax.Array, params: ContinuousParams) -> jax.Array:
-    """The lidar distances in metres ``(..., L)`` an observation holds (what the robot saw, noise included)."""
-    return obs[..., OBS_SCALARS:] * params.lidar_range
+def lidar_from_obs(obs: jax.Array, params: ContinuousParams, num_rays: int) -> jax.Array:
+    """The lidar distances in metres ``(..., L)`` an observation holds (what the robot saw, noise included).
+
+    ``num_rays`` is the environment's ``L`` (``env.num_rays``): the rays follow the contract's 11 values,
+    and with ``observe_target`` the target's 5 values follow the rays.
+    """
+    return obs[..., OBS_SCALARS:OBS_SCALARS + num_rays] * params.lidar_range
 
 
 def render_frame(state: ContinuousState, params: ContinuousParams, lidar: jax.Array | None = None,
@@ -199,7 +203,7 @@ def _run_episode(env, policy_fn, num_steps: int, cell_size: int, rays: bool, par
         step, (obs, state, jnp.bool_(False)), None, length=num_steps)
     first_then = lambda first, rest: jnp.concatenate([first[None], rest])  # noqa: E731
     states = jax.tree.map(first_then, state, states)
-    lidar = lidar_from_obs(first_then(obs, all_obs), params) if rays else None
+    lidar = lidar_from_obs(first_then(obs, all_obs), params, env.num_rays) if rays else None
     frames = jax.vmap(render_frame, in_axes=(0, None, 0 if rays else None, None))(states, params, lidar, cell_size)
     # States stop advancing after the end, so the last state's clock is the length.
     return frames, states.time[-1], rewards.sum(), delivered.any(), collisions.sum(), draws.item_index
