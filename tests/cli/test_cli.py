@@ -237,6 +237,18 @@ def test_continuous_learners_see_the_target_unless_told_otherwise(tmp_path):
         cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--observe-target", "True", "--out", str(tmp_path / "x")])
 
 
+def test_the_continuous_procedural_pool_size_is_a_flag_and_the_study_maps_refuse_it(tmp_path):
+    command = cli_options.parse("ppo", ["--env", "Continuous-Procedural-Warehouse-v0", "--pool-size", "8",
+                                        "--out", str(tmp_path / "a")])
+    algo = build(command.spec, command.config, command.env)
+    assert algo.env_params.pool.blocked.shape[0] == 8 and algo.env.observe_target
+    with pytest.raises(ValueError, match="--pool-size: procedural options, but --env Continuous-Warehouse-8x8-v0"):
+        cli_options.parse("ppo", ["--env", "Continuous-Warehouse-8x8-v0", "--pool-size", "8", "--out", str(tmp_path / "b")])
+    with pytest.raises(ValueError, match="--pool-refresh: procedural options"):
+        cli_options.parse("ppo", ["--env", "Continuous-Procedural-Warehouse-v0", "--pool-refresh", "4",
+                                  "--out", str(tmp_path / "c")])
+
+
 def test_encoder_flag_builds_the_propagation_policy_and_refuses_an_env_without_a_map(tmp_path):
     """``--encoder propagation`` reaches PPO's config; with ``--observe-map False`` the build (before any
     compilation) names the missing map and the flag that adds it."""

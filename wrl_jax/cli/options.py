@@ -235,6 +235,9 @@ FAMILY_OPTIONS = {
 }
 """Environment flags that only some families take (refused on the others before anything is built)."""
 
+ID_OPTIONS = {"pool_size": ("Continuous-Procedural-Warehouse-v0",)}
+"""Flags that single ids of another family take as well (the continuous warehouse's pool of generated layouts)."""
+
 
 def validate(command: Command) -> None:
     """Raise ``ValueError`` for anything wrong with a command, before anything is compiled."""
@@ -245,7 +248,8 @@ def validate(command: Command) -> None:
         raise ValueError(f"unknown {spec.name} preset {run.preset!r}; choose from {sorted(spec.presets)}")
     family = registry.entry(command.env.env).family  # unknown environment -> ValueError
     misplaced = [name for name, families in FAMILY_OPTIONS.items()
-                 if getattr(command.env, name) is not None and family not in families]
+                 if getattr(command.env, name) is not None and family not in families
+                 and command.env.env not in ID_OPTIONS.get(name, ())]
     if misplaced:
         flags = ", ".join("--" + name.replace("_", "-") for name in misplaced)
         kinds = " or ".join(sorted({kind for name in misplaced for kind in FAMILY_OPTIONS[name]}))
