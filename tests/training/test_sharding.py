@@ -160,7 +160,7 @@ def run_with_two_devices(*bodies: str) -> dict:
         cwd=ROOT,
     )
     assert proc.returncode == 0, proc.stderr[-4000:]
-    line = [l for l in proc.stdout.splitlines() if l.startswith("RESULT")][-1]
+    line = [row for row in proc.stdout.splitlines() if row.startswith("RESULT")][-1]
     return json.loads(line[len("RESULT") :])
 
 
