@@ -148,7 +148,8 @@ def _shape(name: str, value: Any) -> tuple[int, int]:
 def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shape: tuple[int, int] = (12, 12),
                                min_shape: tuple[int, int] = (8, 8), num_rays: int = 32, num_obstacles: int = 0,
                                max_steps: int | None = None, randomize: bool = True, name: str = NAME,
-                               observe_target: bool = False, **overrides: Any) -> tuple[ProceduralContinuousWarehouse, ProceduralContinuousParams]:
+                               observe_target: bool = False,
+                               **overrides: Any) -> tuple[ProceduralContinuousWarehouse, ProceduralContinuousParams]:
     """``(env, params)``: ``pool_size`` generated layouts of ``min_shape..max_shape`` from ``seed``.
 
     Overrides: any other :class:`GeneratorConfig` field (``family`` ``"mixture"`` by default,
@@ -179,8 +180,8 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     max_steps = default_max_steps(max_shape) if max_steps is None else max_steps
     pool = generate_pool(jax.random.key(seed), pool_size, generator)
     # The template checks and builds every contract constant from slot 0 (the layout fields are then the pool's).
-    plain, template = make_continuous(slot_layout(pool.layouts, 0), max_steps=max_steps, num_rays=num_rays,
-                                      num_obstacles=0, randomize=randomize, observe_target=observe_target, **overrides)
+    _, template = make_continuous(slot_layout(pool.layouts, 0), max_steps=max_steps, num_rays=num_rays,
+                                  num_obstacles=0, randomize=randomize, observe_target=observe_target, **overrides)
     eligible = _obstacle_masks(pool.layouts)
     if num_obstacles:
         counts = np.asarray(eligible.sum(axis=(1, 2)))
@@ -192,5 +193,5 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     fields = {field.name: getattr(template, field.name) for field in dataclasses.fields(template)}
     params = layout_params(ProceduralContinuousParams(**fields, pool=pool.layouts, pool_obstacle_cells=eligible), 0)
     env = ProceduralContinuousWarehouse(params, generator, pool_seed=seed, num_rays=num_rays,
-                                        num_obstacles=num_obstacles, name=name, observe_target=plain.observe_target)
+                                        num_obstacles=num_obstacles, name=name, observe_target=observe_target)
     return env, params
