@@ -11,16 +11,19 @@ import pytest
 import wrl_jax  # noqa: F401  (registers the Gymnasium ids)
 from wrl_jax.wrappers.gymnasium_continuous import ContinuousGymEnv
 
-IDS = ["wrl_jax/Continuous-Warehouse-8x8-v0", "wrl_jax/Continuous-Warehouse-12x12-Dynamic-v0"]
+CASES = [("wrl_jax/Continuous-Warehouse-8x8-v0", {"shaping": "geodesic", "observe_target": True, "observe_route": True}),
+         ("wrl_jax/Continuous-Warehouse-12x12-Dynamic-v0", {})]
+"""The 8x8 map as SAC and TD3 train on it (the target and the route after the contract's values), the dynamic one plain."""
 
 
-@pytest.mark.parametrize("env_id", IDS)
-def test_gymnasium_env_checker(env_id):
+@pytest.mark.parametrize("env_id, kwargs", CASES)
+def test_gymnasium_env_checker(env_id, kwargs):
     from gymnasium.utils.env_checker import check_env
 
-    env = gym.make(env_id, randomize=True).unwrapped
+    env = gym.make(env_id, randomize=True, **kwargs).unwrapped
     check_env(env, skip_render_check=True)
     assert env.action_space == gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    assert env.observation_space.shape == (11 + 32 + (8 if kwargs else 0),)
 
 
 def test_adapter_is_the_jax_transition_step_by_step():

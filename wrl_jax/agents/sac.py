@@ -27,7 +27,7 @@ import jax.numpy as jnp
 
 from wrl_jax.agents.base import AlgoSpec, Metrics
 from wrl_jax.agents.off_policy import OffPolicyActorCritic, OffPolicyRunner
-from wrl_jax.agents.off_policy_config import CONTINUOUS_ENV_DEFAULTS, CONTINUOUS_NAMES, SAC_PRESETS, SACConfig, SACHyper
+from wrl_jax.agents.off_policy_config import OFF_POLICY_ENV_DEFAULTS, SAC_PRESETS, SACConfig, SACHyper
 
 LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0
 """The actor's log standard deviation is clipped to this range (as SB3 and the SAC paper's code)."""
@@ -135,5 +135,5 @@ SPEC = AlgoSpec(
     default_env="Continuous-Warehouse-12x12-v0",
     default_preset="default",
     default_num_seeds=4,
-    env_defaults={name: CONTINUOUS_ENV_DEFAULTS for name in CONTINUOUS_NAMES},
+    env_defaults=OFF_POLICY_ENV_DEFAULTS,
 )

@@ -66,6 +66,9 @@ class EnvOptions:
     """procedural environments: the visited channel counts visits up to this many (1: visited or not)"""
     observe_target: bool | None = None
     """continuous environments: the target seen from the robot (offset, distance, bearing) after the contract's values"""
+    observe_route: bool | None = None
+    """continuous environments on fixed layouts: the way to the target around the shelves (its direction in the
+    robot's frame, its length); needs --shaping geodesic"""
     randomize: bool | None = None
     """continuous environments: domain randomization (gains, start pose per episode; actuation, lidar noise per step)"""
     reward_type: str | None = None
@@ -220,6 +223,7 @@ FAMILY_OPTIONS = {
     "view_radius": ("fleet", "procedural"),
     "shaping": ("fleet", "procedural", "continuous"),
     "observe_target": ("continuous",),
+    "observe_route": ("continuous",),
     "randomize": ("continuous",),
     "reward_type": ("rware",),
     "sensor_range": ("rware",),

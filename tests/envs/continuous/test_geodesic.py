@@ -122,3 +122,52 @@ def test_observe_target_appends_the_target_in_the_robots_frame():
         np.testing.assert_allclose(np.asarray(obs[plain.obs_size:]), expected, atol=1e-5)
     with pytest.raises(ValueError, match="observe_target must be True or False"):
         make_named("8x8", observe_target="yes")
+
+
+def test_observe_route_points_down_the_field_in_the_robots_frame(study_12x12):
+    """The contract's values unchanged, then the way's direction (forward, left) and its length over the side."""
+    (plain, params), _ = study_12x12
+    routed, routed_params = make_named("12x12", shaping="geodesic", observe_route=True)
+    assert routed.obs_size == plain.obs_size + geodesic.ROUTE_FEATURES
+    high = np.asarray(routed.observation_space().high)
+    assert routed.observation_space().shape == high.shape == (routed.obs_size,) and high[-1] == geodesic.ROUTE_LENGTH_CAP
+    obs, state = routed.reset(jax.random.key(0), routed_params)
+    obs0, _ = plain.reset(jax.random.key(0), params)
+    np.testing.assert_array_equal(obs[: plain.obs_size], obs0)
+    turn = jnp.array([0.3, 1.0])
+    for t in range(4):
+        obs, state, *_ = routed.step(jax.random.key(t), state, turn, routed_params)
+        forward, left, length = np.asarray(obs[plain.obs_size:])
+        assert np.all(np.abs(np.asarray(obs)) <= high)
+        assert abs(np.hypot(forward, left) - 1) < 1e-5
+        field = routed_params.fields[int(np.argmin(np.abs(np.asarray(params.items) - np.asarray(state.item)).sum(-1)))]
+        theta = float(state.theta)
+        way = np.array([forward * np.cos(theta) - left * np.sin(theta), forward * np.sin(theta) + left * np.cos(theta)])
+        here = float(geodesic.read_field(field, state.pos))
+        np.testing.assert_allclose(length, here / 12, rtol=1e-5)
+        # 0.1 m along the way the field falls by nearly 0.1 m (the way is the steepest descent), and it rises the other way.
+        assert here - float(geodesic.read_field(field, state.pos + 0.1 * way)) > 0.09
+        assert float(geodesic.read_field(field, state.pos - 0.1 * way)) > here
+    with pytest.raises(ValueError, match="observe_route reads the geodesic shaping's distance fields"):
+        make_named("12x12", observe_route=True)
+    with pytest.raises(ValueError, match="observe_route must be True or False"):
+        make_named("12x12", shaping="geodesic", observe_route=1)
+
+
+def test_a_controller_that_steers_along_the_route_delivers_every_item_of_12x12(study_12x12):
+    """The route's three values are enough to drive: turn towards the way, go when facing it. (What the learner
+    still has to do is find this, keep off corners, and time it.)"""
+    from wrl_jax.envs.continuous import evaluation
+
+    routed, routed_params = make_named("12x12", shaping="geodesic", observe_route=True)
+    base = routed.obs_size - geodesic.ROUTE_FEATURES
+
+    def follow(obs, state):
+        forward, left = obs[base], obs[base + 1]
+        heading_error = jnp.arctan2(left, forward)
+        return jnp.stack([jnp.clip(jnp.cos(heading_error), 0.0, 1.0), jnp.clip(2.0 * heading_error, -1.0, 1.0)])
+
+    result = jax.jit(lambda p: evaluation.evaluate_episodes(follow, routed, p))(routed_params)
+    valid = np.asarray(result.valid)
+    assert np.asarray(result.delivered)[valid].all()
+    assert np.asarray(result.collisions)[valid].sum() == 0

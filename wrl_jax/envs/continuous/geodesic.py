@@ -13,6 +13,12 @@ read at the robot's centre by bilinear interpolation. Routes keep the robot's ra
 ``SPARE`` from shelves and walls, so following the potential does not graze corners; lattice points
 closer than that take the value of their best free neighbour plus the step, so the potential rises
 towards the shelves instead of leaving holes in the interpolation.
+
+``observe_route=True`` also shows the learner the way: :func:`route_features` appends the direction
+in which the field falls fastest at the robot (in its own frame) and the length of the way left. A
+global planner handing its route to a learned local controller, as navigation stacks do: the learner
+still drives, avoids and times everything itself, but no longer has to memorise the map's routes
+(SAC on the 12x12 map: docs/continuous.md).
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ from flax import struct
 
 from wrl_jax.envs.continuous.dynamics import manhattan
 from wrl_jax.envs.continuous.env import ContinuousWarehouse
+from wrl_jax.envs.continuous.geometry import norm
 from wrl_jax.envs.continuous.types import ContinuousParams, ContinuousState
 
 RESOLUTION = 10
@@ -36,6 +43,12 @@ UNREACHABLE = 1e4
 """The distance read where the target cannot be reached (finite, so differences stay 0, not NaN)."""
 FILL_REACH = 4
 """Lattice steps over which points off the routes look for a route point (0.4 m at 10 per metre)."""
+ROUTE_FEATURES = 3
+"""Values :func:`route_features` appends: the way's direction (forward, left) and its remaining length."""
+ROUTE_STEP = 0.05
+"""Metres either side of the robot at which the field is read for its slope (half a lattice step)."""
+ROUTE_LENGTH_CAP = 4.0
+"""The remaining length is given over the map's longer side and capped here (an unreachable target reads 4)."""
 MOVES = tuple((dy, dx) for dy in range(-2, 3) for dx in range(-2, 3)
               if (dy, dx) != (0, 0) and np.gcd(abs(dy), abs(dx)) == 1)
 """The 16 lattice moves: the 8 neighbours and the 8 knight's moves."""
@@ -153,15 +166,71 @@ def read_field(field: jax.Array, point: jax.Array, resolution: int = RESOLUTION)
     return top * (1 - fy) + bottom * fy
 
 
+def route_features(obs: jax.Array, params: GeodesicParams, width: int, height: int) -> jax.Array:
+    """The way to the target from the contract's observation: ``(forward, left, length)``.
+
+    ``(forward, left)`` is the unit vector, in the robot's frame, against the field's slope at the robot
+    (central differences :data:`ROUTE_STEP` either side; ``(0, 0)`` where the field is flat: on the
+    target, or where it cannot be reached); ``length`` is the field's value over the map's longer side,
+    at most :data:`ROUTE_LENGTH_CAP`. The field is the one the shaping reads (the item's slot, or the
+    goal's while carrying), found from observation values 0-3 and 8-10.
+    """
+    size = jnp.array([width, height], jnp.float32)
+    pos, item = obs[0:2] * size, obs[8:10] * size
+    slot = jnp.argmin(jnp.sum(jnp.abs(params.items - item), axis=-1))
+    field = params.fields[jnp.where(obs[10] > 0.5, params.fields.shape[0] - 1, slot)]
+    dx, dy = jnp.array([ROUTE_STEP, 0.0]), jnp.array([0.0, ROUTE_STEP])
+    down = jnp.stack([read_field(field, pos - dx) - read_field(field, pos + dx),
+                      read_field(field, pos - dy) - read_field(field, pos + dy)])
+    slope = norm(down)
+    way = jnp.where(slope > 0, down / jnp.maximum(slope, 1e-12), 0.0)
+    cos, sin = obs[2], obs[3]
+    scale = jnp.float32(max(width, height))
+    length = jnp.minimum(read_field(field, pos) / scale, ROUTE_LENGTH_CAP)
+    return jnp.stack([way[0] * cos + way[1] * sin, way[1] * cos - way[0] * sin, length])
+
+
 class GeodesicShaping(ContinuousWarehouse):
     """The contract's warehouse, the shaping term's distance measured around the shelves (see the module).
 
     Build it with ``make_continuous(layout, shaping="geodesic")`` or ``wrl_jax.make(name, shaping="geodesic")``;
-    ``params`` are :class:`GeodesicParams`. Everything but the reward is the contract's, bit for bit.
+    ``params`` are :class:`GeodesicParams`. Everything but the reward is the contract's, bit for bit, and
+    ``observe_route`` appends :func:`route_features` to the observation (after the target's, if any).
     """
+
+    def __init__(self, params: GeodesicParams, num_rays: int = 32, num_obstacles: int = 0,
+                 name: str = "Continuous-Warehouse", observe_target: bool = False, observe_route: bool = False):
+        super().__init__(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
+                         observe_target=observe_target)
+        self.observe_route = bool(observe_route)
+
+    def static_config(self) -> tuple:
+        return super().static_config() + (self.observe_route,)
+
+    @property
+    def obs_size(self) -> int:
+        return super().obs_size + (ROUTE_FEATURES if self.observe_route else 0)
+
+    def with_route(self, obs: jax.Array, params: GeodesicParams) -> jax.Array:
+        if not self.observe_route:
+            return obs
+        return jnp.concatenate([obs, route_features(obs, params, self.width, self.height)])
+
+    def observation_space(self, params: GeodesicParams | None = None):
+        space = super().observation_space(params)  # sized by obs_size, the route's values bounded by 1
+        if not self.observe_route:
+            return space
+        high = np.asarray(space.high).copy()
+        high[-1] = ROUTE_LENGTH_CAP
+        return type(space)(low=-high, high=high, shape=(self.obs_size,), dtype=jnp.float32)
+
+    def reset_with(self, draws, params: GeodesicParams):
+        obs, state = super().reset_with(draws, params)
+        return self.with_route(obs, params), state
 
     def transition(self, key: jax.Array, state: ContinuousState, action: Any, params: GeodesicParams):
         obs, reached, reward, terminated, truncated, info = super().transition(key, state, action, params)
+        obs = self.with_route(obs, params)
         slot = jnp.argmin(jnp.sum(jnp.abs(params.items - state.item), axis=-1))
         index = jnp.where(state.carrying, params.fields.shape[0] - 1, slot)
         field = params.fields[index]
@@ -171,12 +240,13 @@ class GeodesicShaping(ContinuousWarehouse):
         return obs, reached, reward + params.shaping_coef * (around - contract), terminated, truncated, info
 
 
-def with_fields(env: ContinuousWarehouse, params: ContinuousParams) -> tuple[GeodesicShaping, GeodesicParams]:
+def with_fields(env: ContinuousWarehouse, params: ContinuousParams,
+                observe_route: bool = False) -> tuple[GeodesicShaping, GeodesicParams]:
     """``(env, params)`` of :class:`GeodesicShaping` over the same layout and settings."""
     targets = np.concatenate([np.asarray(params.items), np.asarray(params.goal)[None]])
     fields = distance_fields(np.asarray(params.shelves), targets, float(params.robot_radius) + SPARE)
     shaped_params = GeodesicParams(**{f: getattr(params, f) for f in params.__dataclass_fields__},
                                    fields=jnp.asarray(fields))
     shaped = GeodesicShaping(shaped_params, num_rays=env.num_rays, num_obstacles=env.num_obstacles, name=env.name,
-                             observe_target=env.observe_target)
+                             observe_target=env.observe_target, observe_route=observe_route)
     return shaped, shaped_params

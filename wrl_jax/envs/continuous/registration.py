@@ -54,18 +54,21 @@ def obstacle_cells(layout: Layout) -> np.ndarray:
 
 def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_rays: int = 32,
                     num_obstacles: int = 0, name: str = "Continuous-Warehouse", shaping: str = "manhattan",
-                    observe_target: bool = False, **overrides: Any) -> tuple[ContinuousWarehouse, ContinuousParams]:
+                    observe_target: bool = False, observe_route: bool = False,
+                    **overrides: Any) -> tuple[ContinuousWarehouse, ContinuousParams]:
     """``(env, params)`` for ``layout`` (a :class:`Layout` or an ASCII map of SPEC.md).
 
     ``shaping="geodesic"`` measures the shaping term's distance around the shelves instead of the
     contract's Manhattan distance (:mod:`wrl_jax.envs.continuous.geodesic`); ``observe_target=True``
-    appends the target seen from the robot to the observation (:func:`~.env.target_features`). Both
-    are for learners; the registered names are the contract's.
+    appends the target seen from the robot to the observation (:func:`~.env.target_features`);
+    ``observe_route=True`` (with geodesic shaping, whose fields it reads) appends the way there
+    (:func:`~.geodesic.route_features`). All three are for learners; the registered names are the contract's.
 
     Raises:
         ValueError: naming the problem: an unknown override or shaping, a non-positive length or speed, a
             ``max_steps`` missing for a layout other than the study's, too few cells for the
-            obstacles, or a gain range that is not ``0 < low <= high``.
+            obstacles, a gain range that is not ``0 < low <= high``, or ``observe_route`` without
+            geodesic shaping.
     """
     layout = parse(layout) if isinstance(layout, str) else layout
     unknown = sorted(set(overrides) - set(DEFAULTS))
@@ -109,11 +112,16 @@ def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_r
         start_cell=jnp.asarray(layout.start, jnp.int32), goal=jnp.asarray(point(layout.goal)),
         goal_cell=jnp.asarray(layout.goal, jnp.int32), items=jnp.asarray(items),
         num_items=jnp.asarray(len(layout.items), jnp.int32), obstacle_cells=jnp.asarray(eligible))
-    if not isinstance(observe_target, (bool, np.bool_)):
-        raise ValueError(f"observe_target must be True or False, got {observe_target!r}")
+    for flag, value in (("observe_target", observe_target), ("observe_route", observe_route)):
+        if not isinstance(value, (bool, np.bool_)):
+            raise ValueError(f"{flag} must be True or False, got {value!r}")
+    if observe_route and shaping != "geodesic":
+        raise ValueError("observe_route reads the geodesic shaping's distance fields: pass shaping='geodesic' "
+                         "with it (--shaping geodesic), or observe_route=False (--observe-route False); "
+                         f"got shaping={shaping!r}")
     env = ContinuousWarehouse(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
                               observe_target=bool(observe_target))
-    return geodesic.with_fields(env, params) if shaping == "geodesic" else (env, params)
+    return geodesic.with_fields(env, params, bool(observe_route)) if shaping == "geodesic" else (env, params)
 
 
 NAMED_MAPS = {"8x8": maps.WAREHOUSE_8X8, "12x12": maps.WAREHOUSE_12X12}
