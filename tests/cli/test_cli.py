@@ -242,20 +242,19 @@ def test_sac_and_td3_see_the_route_on_the_study_maps_and_ppo_does_not(tmp_path):
     variant has no distance fields); PPO keeps the target alone; the flags turn it off, and a route without the
     fields is refused by name when the environment is built, before anything compiles."""
     for algo in ("sac", "td3"):
-        for name in ("Continuous-Warehouse-8x8-v0", "Continuous-Warehouse-12x12-v0",
-                     "Continuous-Warehouse-12x12-Dynamic-v0"):
+        for name in ("Continuous-Warehouse-8x8-v0", "Continuous-Warehouse-12x12-v0"):
             overrides = cli_options.parse(algo, ["--env", name, "--out", str(tmp_path / algo)]).env.overrides()
             assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"]) == (
                 "geodesic", True, True), (algo, name)
-        overrides = cli_options.parse(algo, ["--env", "Continuous-Procedural-Warehouse-v0",
-                                             "--out", str(tmp_path / algo)]).env.overrides()
-        assert "observe_route" not in overrides and "shaping" not in overrides
+        for name in ("Continuous-Warehouse-12x12-Dynamic-v0", "Continuous-Procedural-Warehouse-v0"):
+            overrides = cli_options.parse(algo, ["--env", name, "--out", str(tmp_path / algo)]).env.overrides()
+            assert "observe_route" not in overrides and "shaping" not in overrides and overrides["observe_target"]
     assert "observe_route" not in cli_options.parse("ppo", ["--env", "Continuous-Warehouse-12x12-v0", "--out",
                                                             str(tmp_path / "ppo")]).env.overrides()
     command = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--observe-route", "False",
-                                        "--shaping", "manhattan", "--out", str(tmp_path / "off")])
+                                        "--out", str(tmp_path / "off")])
     algo = build(command.spec, command.config, command.env)
-    assert not getattr(algo.env, "observe_route", False)
+    assert algo.env.obs_size == 11 + 32 + 5 and not algo.env.observe_route  # geodesic shaping kept, no route
     command = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--shaping", "manhattan",
                                         "--out", str(tmp_path / "bad")])
     with pytest.raises(ValueError, match="observe_route reads the geodesic shaping's distance fields"):

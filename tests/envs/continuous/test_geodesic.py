@@ -148,8 +148,18 @@ def test_observe_route_points_down_the_field_in_the_robots_frame(study_12x12):
         # 0.1 m along the way the field falls by nearly 0.1 m (the way is the steepest descent), and it rises the other way.
         assert here - float(geodesic.read_field(field, state.pos + 0.1 * way)) > 0.09
         assert float(geodesic.read_field(field, state.pos - 0.1 * way)) > here
+    # With the target too (SAC's and TD3's training view): the target's 5 values first, then the route's 3.
+    both, both_params = make_named("12x12", shaping="geodesic", observe_target=True, observe_route=True)
+    target, target_params = make_named("12x12", observe_target=True)
+    obs_both, _ = both.reset(jax.random.key(1), both_params)
+    obs_target, _ = target.reset(jax.random.key(1), target_params)
+    obs_route, _ = routed.reset(jax.random.key(1), routed_params)
+    np.testing.assert_array_equal(obs_both, np.concatenate([obs_target, obs_route[plain.obs_size:]]))
     with pytest.raises(ValueError, match="observe_route reads the geodesic shaping's distance fields"):
         make_named("12x12", observe_route=True)
+    from wrl_jax.envs.continuous.procedural import make_continuous_procedural
+    with pytest.raises(ValueError, match=r"\['observe_route'\] need a fixed layout's distance fields"):
+        make_continuous_procedural(observe_route=True)
     with pytest.raises(ValueError, match="observe_route must be True or False"):
         make_named("12x12", shaping="geodesic", observe_route=1)
 

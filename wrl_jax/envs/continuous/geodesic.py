@@ -212,6 +212,8 @@ class GeodesicShaping(ContinuousWarehouse):
         return super().obs_size + (ROUTE_FEATURES if self.observe_route else 0)
 
     def with_route(self, obs: jax.Array, params: GeodesicParams) -> jax.Array:
+        """The route after the other values. Appended here, by reset and transition, not in ``observation``:
+        it reads the params' fields, which that hook does not receive."""
         if not self.observe_route:
             return obs
         return jnp.concatenate([obs, route_features(obs, params, self.width, self.height)])
@@ -222,7 +224,12 @@ class GeodesicShaping(ContinuousWarehouse):
             return space
         high = np.asarray(space.high).copy()
         high[-1] = ROUTE_LENGTH_CAP
-        return type(space)(low=-high, high=high, shape=(self.obs_size,), dtype=jnp.float32)
+        low = -high
+        low[-1] = 0.0
+        return type(space)(low=low, high=high, shape=(self.obs_size,), dtype=jnp.float32)
+
+    def __repr__(self) -> str:
+        return super().__repr__()[:-1] + f", geodesic shaping, route={'on' if self.observe_route else 'off'})"
 
     def reset_with(self, draws, params: GeodesicParams):
         obs, state = super().reset_with(draws, params)

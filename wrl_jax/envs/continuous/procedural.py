@@ -158,10 +158,15 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     ``observe_target`` appends the target seen from the robot, as on the plain environment.
 
     Raises:
-        ValueError: naming the setting: an unknown override, a pool size outside 1..65535, a
+        ValueError: naming the setting: an unknown override (``shaping`` and ``observe_route``, which need a
+            fixed layout, with that reason), a pool size outside 1..65535, a
             non-square ``max_shape`` (the contract's layouts are square), a bad generator range or
             contract constant, or a pool layout with fewer cells for moving obstacles than ``num_obstacles``.
     """
+    fixed_layout_only = sorted({"shaping", "observe_route"} & set(overrides))
+    if fixed_layout_only:
+        raise ValueError(f"{fixed_layout_only} need a fixed layout's distance fields (geodesic shaping, the route), "
+                         f"which {NAME} does not build: its layouts change every episode")
     unknown = sorted(set(overrides) - set(GENERATOR_FIELDS) - set(DEFAULTS))
     if unknown:
         raise ValueError(f"unknown option(s) {unknown} for {NAME}; known: generator fields "
