@@ -40,7 +40,7 @@ def test_bad_settings_are_refused_with_the_setting_named(overrides, message):
 
 def test_actions_of_the_wrong_shape_or_kind_are_refused(dynamic):
     env, params = dynamic
-    _, state = env.reset(jax.random.key(0), params)
+    _, state = jax.jit(env.reset)(jax.random.key(0), params)  # jitted: eagerly it compiles op by op
     with pytest.raises(ValueError, match=r"shape \(2,\)"):
         env.step(jax.random.key(1), state, jnp.zeros(3), params)
     with pytest.raises(ValueError, match="two floats"):

@@ -106,12 +106,13 @@ def test_observe_target_appends_the_target_in_the_robots_frame():
     seen, seen_params = make_named("8x8", observe_target=True)
     assert seen.obs_size == plain.obs_size + 5 and seen.observation_space().shape == (seen.obs_size,)
     key = jax.random.key(0)
-    obs, state = seen.reset(key, seen_params)
-    obs0, _ = plain.reset(key, params)
+    obs, state = jax.jit(seen.reset)(key, seen_params)  # jitted: eagerly they compile op by op
+    obs0, _ = jax.jit(plain.reset)(key, params)
     np.testing.assert_array_equal(obs[: plain.obs_size], obs0)
     turn = jnp.array([0.0, 1.0])  # turn on the spot: the target's bearing rotates with the robot
+    step = jax.jit(seen.step)
     for t in range(3):
-        obs, state, *_ = seen.step(jax.random.key(t), state, turn, seen_params)
+        obs, state, *_ = step(jax.random.key(t), state, turn, seen_params)
         target = np.asarray(state.item)  # not carrying: the item
         offset = target - np.asarray(state.pos)
         theta = float(state.theta)
@@ -131,12 +132,13 @@ def test_observe_route_points_down_the_field_in_the_robots_frame(study_12x12):
     assert routed.obs_size == plain.obs_size + geodesic.ROUTE_FEATURES
     high = np.asarray(routed.observation_space().high)
     assert routed.observation_space().shape == high.shape == (routed.obs_size,) and high[-1] == geodesic.ROUTE_LENGTH_CAP
-    obs, state = routed.reset(jax.random.key(0), routed_params)
-    obs0, _ = plain.reset(jax.random.key(0), params)
+    obs, state = jax.jit(routed.reset)(jax.random.key(0), routed_params)
+    obs0, _ = jax.jit(plain.reset)(jax.random.key(0), params)
     np.testing.assert_array_equal(obs[: plain.obs_size], obs0)
     turn = jnp.array([0.3, 1.0])
+    step = jax.jit(routed.step)
     for t in range(4):
-        obs, state, *_ = routed.step(jax.random.key(t), state, turn, routed_params)
+        obs, state, *_ = step(jax.random.key(t), state, turn, routed_params)
         forward, left, length = np.asarray(obs[plain.obs_size:])
         assert np.all(np.abs(np.asarray(obs)) <= high)
         assert abs(np.hypot(forward, left) - 1) < 1e-5
@@ -151,9 +153,9 @@ def test_observe_route_points_down_the_field_in_the_robots_frame(study_12x12):
     # With the target too (SAC's and TD3's training view): the target's 5 values first, then the route's 3.
     both, both_params = make_named("12x12", shaping="geodesic", observe_target=True, observe_route=True)
     target, target_params = make_named("12x12", observe_target=True)
-    obs_both, _ = both.reset(jax.random.key(1), both_params)
-    obs_target, _ = target.reset(jax.random.key(1), target_params)
-    obs_route, _ = routed.reset(jax.random.key(1), routed_params)
+    obs_both, _ = jax.jit(both.reset)(jax.random.key(1), both_params)
+    obs_target, _ = jax.jit(target.reset)(jax.random.key(1), target_params)
+    obs_route, _ = jax.jit(routed.reset)(jax.random.key(1), routed_params)
     np.testing.assert_array_equal(obs_both, np.concatenate([obs_target, obs_route[plain.obs_size:]]))
     with pytest.raises(ValueError, match="observe_route reads the geodesic shaping's distance fields"):
         make_named("12x12", observe_route=True)
