@@ -9,6 +9,9 @@ telescopes to the distance covered).
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -167,18 +170,16 @@ def test_observe_route_points_down_the_field_in_the_robots_frame(study_12x12):
 
 
 def test_a_controller_that_steers_along_the_route_delivers_every_item_of_12x12(study_12x12):
-    """The route's three values are enough to drive: turn towards the way, go when facing it. (What the learner
-    still has to do is find this, keep off corners, and time it.)"""
+    """The route's three values are enough to drive: turn towards the way, go when facing it (the rule of
+    bench/investigations/continuous_route_rule.py, which docs/continuous.md cites). What the learner still has
+    to do is find this, keep off corners, and time it."""
     from wrl_jax.envs.continuous import evaluation
 
+    sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "bench" / "investigations"))
+    from continuous_route_rule import follow_route
+
     routed, routed_params = make_named("12x12", shaping="geodesic", observe_route=True)
-    base = routed.obs_size - geodesic.ROUTE_FEATURES
-
-    def follow(obs, state):
-        forward, left = obs[base], obs[base + 1]
-        heading_error = jnp.arctan2(left, forward)
-        return jnp.stack([jnp.clip(jnp.cos(heading_error), 0.0, 1.0), jnp.clip(2.0 * heading_error, -1.0, 1.0)])
-
+    follow = follow_route(routed.obs_size - geodesic.ROUTE_FEATURES)
     result = jax.jit(lambda p: evaluation.evaluate_episodes(follow, routed, p))(routed_params)
     valid = np.asarray(result.valid)
     assert np.asarray(result.delivered)[valid].all()

@@ -166,6 +166,12 @@ def read_field(field: jax.Array, point: jax.Array, resolution: int = RESOLUTION)
     return top * (1 - fy) + bottom * fy
 
 
+def target_field(params: GeodesicParams, item: jax.Array, carrying: jax.Array) -> jax.Array:
+    """The field towards the current target: the slot of the item at ``item`` (metres), or the goal's while carrying."""
+    slot = jnp.argmin(jnp.sum(jnp.abs(params.items - item), axis=-1))
+    return params.fields[jnp.where(carrying, params.fields.shape[0] - 1, slot)]
+
+
 def route_features(obs: jax.Array, params: GeodesicParams, width: int, height: int) -> jax.Array:
     """The way to the target from the contract's observation: ``(forward, left, length)``.
 
@@ -176,9 +182,8 @@ def route_features(obs: jax.Array, params: GeodesicParams, width: int, height: i
     goal's while carrying), found from observation values 0-3 and 8-10.
     """
     size = jnp.array([width, height], jnp.float32)
-    pos, item = obs[0:2] * size, obs[8:10] * size
-    slot = jnp.argmin(jnp.sum(jnp.abs(params.items - item), axis=-1))
-    field = params.fields[jnp.where(obs[10] > 0.5, params.fields.shape[0] - 1, slot)]
+    pos = obs[0:2] * size
+    field = target_field(params, obs[8:10] * size, obs[10] > 0.5)
     dx, dy = jnp.array([ROUTE_STEP, 0.0]), jnp.array([0.0, ROUTE_STEP])
     down = jnp.stack([read_field(field, pos - dx) - read_field(field, pos + dx),
                       read_field(field, pos - dy) - read_field(field, pos + dy)])
@@ -238,9 +243,7 @@ class GeodesicShaping(ContinuousWarehouse):
     def transition(self, key: jax.Array, state: ContinuousState, action: Any, params: GeodesicParams):
         obs, reached, reward, terminated, truncated, info = super().transition(key, state, action, params)
         obs = self.with_route(obs, params)
-        slot = jnp.argmin(jnp.sum(jnp.abs(params.items - state.item), axis=-1))
-        index = jnp.where(state.carrying, params.fields.shape[0] - 1, slot)
-        field = params.fields[index]
+        field = target_field(params, state.item, state.carrying)
         target = jnp.where(state.carrying, params.goal, state.item)
         contract = manhattan(state.pos, target) - manhattan(reached.pos, target)
         around = read_field(field, state.pos) - read_field(field, reached.pos)
