@@ -3,6 +3,9 @@ environment's, bad actions fail clearly, and Stable-Baselines3's SAC trains on i
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import gymnasium as gym
 import jax
 import numpy as np
@@ -80,8 +83,18 @@ def test_stable_baselines3_sac_trains_on_it(tmp_path):
     model.set_logger(sb3.common.logger.configure(str(tmp_path), []))  # else a log folder in the system temp dir
     model.learn(total_timesteps=120)
     assert model.num_timesteps == 120 and model.replay_buffer.size() == 120
-    action, _ = model.predict(env.reset(seed=0)[0], deterministic=True)
+    obs = env.reset(seed=0)[0]
+    action, _ = model.predict(obs, deterministic=True)
     assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
+    # bench/sb3_sac.py evaluates SB3's policy with the family's JAX evaluation by reading its actor's weights:
+    # the JAX function must act as SB3's own predict.
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+    from bench.sb3_sac import sb3_actor_params, sb3_deterministic_action
+
+    batch = np.stack([obs, *(env.step(env.action_space.sample())[0] for _ in range(7))])
+    expected, _ = model.predict(batch, deterministic=True)
+    np.testing.assert_allclose(np.asarray(sb3_deterministic_action(sb3_actor_params(model), batch)), expected,
+                               atol=1e-5)
 
 
 def test_rgb_array_rendering_draws_the_jax_state():
