@@ -237,6 +237,15 @@ def test_continuous_learners_see_the_target_unless_told_otherwise(tmp_path):
         cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--observe-target", "True", "--out", str(tmp_path / "x")])
 
 
+def test_the_continuous_collision_penalty_is_a_flag_that_reaches_the_params(tmp_path):
+    command = cli_options.parse("ppo", ["--env", "Continuous-Warehouse-12x12-Dynamic-v0", "--collision-penalty", "-50",
+                                        "--out", str(tmp_path / "c")])
+    algo = build(command.spec, command.config, command.env)
+    assert float(algo.env_params.collision_penalty) == -50.0
+    with pytest.raises(ValueError, match="--collision-penalty: continuous options"):
+        cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--collision-penalty", "-5", "--out", str(tmp_path / "x")])
+
+
 def test_sac_and_td3_see_the_route_on_the_study_maps_and_ppo_does_not(tmp_path):
     """SAC's and TD3's commands add geodesic shaping and ``observe_route`` on the study's maps (the procedural
     variant has no distance fields); PPO keeps the target alone; the flags turn it off, and a route without the

@@ -69,6 +69,8 @@ class EnvOptions:
     observe_route: bool | None = None
     """continuous environments on fixed layouts: the way to the target around the shelves (its direction in the
     robot's frame, its length); needs --shaping geodesic"""
+    collision_penalty: float | None = None
+    """continuous environments: reward of a step that touches a shelf, wall or obstacle (the contract's -10)"""
     randomize: bool | None = None
     """continuous environments: domain randomization (gains, start pose per episode; actuation, lidar noise per step)"""
     reward_type: str | None = None
@@ -225,6 +227,7 @@ FAMILY_OPTIONS = {
     "observe_target": ("continuous",),
     "observe_route": ("continuous",),
     "randomize": ("continuous",),
+    "collision_penalty": ("continuous",),
     "reward_type": ("rware",),
     "sensor_range": ("rware",),
     "max_inactivity_steps": ("rware",),
