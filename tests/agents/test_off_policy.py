@@ -130,6 +130,7 @@ def test_squashed_gaussian_density_counts_tanh_and_the_box(corridor):
     np.testing.assert_allclose(np.asarray(log_prob), expected, atol=2e-3)
     np.testing.assert_allclose(np.asarray(algo.to_env(unit)), 2 * np.asarray(unit), rtol=1e-6)
     assert algo.target_entropy == -2.0
+    assert SAC(dataclasses.replace(tiny(SACConfig), target_entropy=-5.0), wide, params).target_entropy == -5.0
 
 
 @pytest.mark.parametrize("config_cls,changes,message", [
@@ -137,6 +138,7 @@ def test_squashed_gaussian_density_counts_tanh_and_the_box(corridor):
     (SACConfig, {"learning_rate": -1.0}, "learning_rate must be > 0"),
     (SACConfig, {"initial_alpha": 0.0}, "initial_alpha must be > 0"),
     (SACConfig, {"activation": "gelu"}, "activation must be one of"),
+    (SACConfig, {"target_entropy": float("nan")}, "target_entropy must be a finite number or None"),
     (SACConfig, {"buffer_size": 4, "num_envs": 8}, "buffer_size"),
     (TD3Config, {"policy_delay": 0}, "policy_delay must be a positive integer"),
     (TD3Config, {"noise_clip": -0.1}, "noise_clip must be >= 0"),

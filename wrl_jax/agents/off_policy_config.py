@@ -9,6 +9,7 @@ other field is static.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any, ClassVar
 
 import jax
@@ -154,8 +155,9 @@ class SACConfig(OffPolicyConfig):
     """Soft actor-critic (Haarnoja et al. 2018, the version with a learned temperature).
 
     Static:
-        learn_alpha: learn the temperature towards the target entropy ``-|A|``
-            (otherwise it stays ``initial_alpha``).
+        learn_alpha: learn the temperature towards the target entropy (otherwise it stays ``initial_alpha``).
+        target_entropy: the entropy of the environment's actions the temperature steers towards
+            (``None``: ``-|A|``, the SAC paper's).
 
     Traced:
         initial_alpha: the temperature at the start.
@@ -165,7 +167,15 @@ class SACConfig(OffPolicyConfig):
     owner: ClassVar[str] = "SACConfig"
 
     learn_alpha: bool = True
+    target_entropy: float | None = None
     initial_alpha: float = 1.0
+
+    def validate(self) -> None:
+        super().validate()
+        value = self.target_entropy
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                  or not math.isfinite(value)):
+            raise ValueError(f"{self.owner}.target_entropy must be a finite number or None (-|A|), got {value!r}")
 
 
 @dataclasses.dataclass(frozen=True)

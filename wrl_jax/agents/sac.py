@@ -46,7 +46,8 @@ class SAC(OffPolicyActorCritic):
 
     @property
     def target_entropy(self) -> float:
-        return -float(self.action_size)
+        target = self.config.target_entropy
+        return -float(self.action_size) if target is None else float(target)
 
     def initial_log_alpha(self, hyper: SACHyper) -> jax.Array:
         return jnp.log(jnp.asarray(hyper.initial_alpha, jnp.float32))
