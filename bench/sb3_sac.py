@@ -207,7 +207,12 @@ def library_policy(model, library: str):
     if library == "sb3":
         return sb3_actor_params(model), sb3_deterministic_action
     state = model.policy.actor_state  # sbx: a flax TrainState; the deterministic action is the mode
-    return state.params, lambda params, obs: state.apply_fn(params, obs).mode()
+
+    def action(params, obs):  # sbx's actor flattens all but a leading batch axis: give it one
+        rows = obs.reshape(-1, obs.shape[-1])
+        return state.apply_fn(params, rows).mode().reshape(*obs.shape[:-1], -1)
+
+    return state.params, action
 
 
 def run_library(config, env_name: str, seeds: list[int], eval_every_steps: int, target: float,
