@@ -8,32 +8,35 @@ target and the route seen, geodesic shaping), seeds ``0..N-1``, in one run:
   compile time reported apart and counted in the wall.
 - **SB3**: ``stable_baselines3.SAC`` (PyTorch, CPU) on the Gymnasium adapter
   (``wrl_jax.wrappers.gymnasium_continuous.ContinuousGymEnv``), a ``DummyVecEnv`` of ``num_envs``
-  copies, one seed after another.
+  copies per seed; the seeds split over ``--library-processes`` processes (default 2, one PyTorch thread
+  each: both cores, as ours uses them; two threads in one process oversubscribe a shared 2-core machine,
+  see ``bench/sb3_dqn.py``).
 - **sbx** (``--libraries sbx``): SB3's loop with its networks and updates in JAX (``sbx.SAC``), the same
-  adapter and vector environment. It is not in the test extras; its venv reuses this project's packages
-  (it asks for nothing they conflict with)::
+  adapter and vector environment, its seeds one after another in one process (XLA spreads its work over
+  the cores, as ours). It is not in the test extras; its venv reuses this
+  project's packages (it asks for nothing they conflict with)::
 
       python3 -m venv /tmp/sbx-venv
       echo "$PWD/.venv/lib/python3.11/site-packages" > /tmp/sbx-venv/lib/python3.11/site-packages/wrl.pth
       /tmp/sbx-venv/bin/pip install sbx-rl==0.28.0
-      /tmp/sbx-venv/bin/python bench/sb3_sac.py --libraries sbx
+      /tmp/sbx-venv/bin/python bench/sb3_sac.py --libraries sb3 sbx
 
-The settings map one to one: 16 environments, ``train_freq`` 1 vector step, 2 gradient steps per
-vector step, batch 256, buffer 200k, 5,000 random steps first, two hidden layers of 128 (ReLU),
-learning rate 1e-3 for the actor, the critics and the temperature, Adam's epsilon, gamma 0.99, tau
-0.005, the temperature learned from 0.1 towards ``-|A|``, time-limit cut-offs bootstrapped. Our
-``reward_scale`` 0.1 is a ``TransformReward`` on the libraries' side. What differs inside the
-algorithms: SB3 and sbx update the temperature before the critics (ours after the actor), and the
-initial weights agree only in distribution.
+The settings map one to one (``library_kwargs``; tested for SB3): 16 environments, ``train_freq`` 1
+vector step, 2 gradient steps per vector step, batch 256, buffer 200k, 5,000 random steps first, two
+hidden layers of 128 (ReLU), learning rate 1e-3 for the actor, the critics and the temperature, Adam's
+epsilon, gamma 0.99, tau 0.005, the temperature learned from 0.1 towards the target entropy,
+time-limit cut-offs bootstrapped. Our ``reward_scale`` 0.1 is a ``TransformReward`` on the libraries'
+side. What differs: the initial weights (ours orthogonal, the actor's last layer scaled by 0.01; SB3
+PyTorch's uniform default, sbx flax's default), and the order of the temperature step (SB3 before the
+critics, with the old value used in that gradient step as ours does; sbx and ours after the actor).
 
 Every side is evaluated the same way every ``--eval-every-steps`` transitions per seed: the
-deterministic policy on every item of the warehouse, with the family's evaluation
-(``wrl_jax.envs.continuous.evaluation.evaluate_episodes``; the libraries' actor weights are read
-into a JAX function that acts as their ``predict(obs, deterministic=True)``, tested), and a seed
-stops at its first evaluation with at least ``--target`` of the items delivered. The libraries'
-evaluation time is excluded from their wall; ours runs inside the compiled loop and is included.
-PyTorch runs one intra-op thread (``--torch-threads``), as in ``bench/sb3_dqn.py`` (two threads on
-this shared 2-core machine oversubscribe it).
+deterministic policy on every item of the warehouse, with the family's evaluation and per-seed summary
+(``wrl_jax.envs.continuous.evaluation``; the libraries' actor weights are read into a JAX function that
+acts as their ``predict(obs, deterministic=True)``, tested for SB3), and a seed stops at its first
+evaluation with at least ``--target`` of the items delivered. The libraries' evaluation time is excluded
+from their wall; ours runs inside the compiled loop, is included, and all our seeds train until the
+slowest has reached the target: both choices favour the libraries.
 
     python bench/sb3_sac.py --seeds 4
     python bench/sb3_sac.py --env Continuous-Warehouse-8x8-v0 --seeds 2
@@ -152,39 +155,39 @@ def sb3_deterministic_action(weights, obs):
 
 
 def make_evaluator(env_name: str, action):
-    """``policy params -> (delivered fraction, solved)``: ``action(params, obs)`` on the family's episodes."""
+    """``policy params -> (delivered fraction, solved)``: ``action(params, obs)`` on the family's episodes,
+    scored by the family's own per-seed summary (what our training loop reports)."""
     import jax
 
     import wrl_jax
-    from wrl_jax.envs.continuous.evaluation import evaluate_episodes
+    from wrl_jax.envs.continuous.evaluation import evaluate_episodes, seed_summary
 
     env, params = wrl_jax.make(env_name, **env_view(env_name))
 
     @jax.jit
     def delivered(policy):
-        result = evaluate_episodes(lambda obs, state: action(policy, obs), env, params)
-        return (result.delivered.sum() / result.valid.sum(),
-                ((result.delivered & (result.collisions == 0)).sum() == result.valid.sum()))
+        summary = seed_summary(evaluate_episodes(lambda obs, state: action(policy, obs), env, params))
+        return summary["eval_success_rate"], summary["eval_solved"] == 1.0
 
     return lambda policy: tuple(float(x) for x in delivered(policy))
 
 
 def library_kwargs(config, library: str) -> dict[str, Any]:
-    """``SAC`` arguments of SB3 or sbx for a :class:`SACConfig`; raises for what they cannot express."""
+    """``SAC`` arguments of SB3 or sbx for a :class:`SACConfig`; raises for what this comparison does not map."""
     if config.n_step != 1 or config.noise_correlation != 0.0:
         raise ValueError(f"{library}'s SAC has no n-step targets or correlated exploration noise here")
     if not config.learn_alpha:
         raise ValueError("this comparison maps the learned temperature only")
+    if config.activation != "relu":
+        raise ValueError("this comparison maps ReLU networks only (the evaluation reads the actor as ReLU layers)")
     if library == "sb3":
         import torch
 
-        activation, device = {"relu": torch.nn.ReLU, "tanh": torch.nn.Tanh}[config.activation], "cpu"
-        optimizer = dict(optimizer_kwargs=dict(eps=config.adam_eps))
+        activation = torch.nn.ReLU
     else:
         import flax.linen as nn
 
-        activation, device = {"relu": nn.relu, "tanh": nn.tanh}[config.activation], "cpu"
-        optimizer = dict(optimizer_kwargs=dict(eps=config.adam_eps))
+        activation = nn.relu
     return dict(
         learning_rate=config.learning_rate,
         buffer_size=config.buffer_size,
@@ -195,9 +198,10 @@ def library_kwargs(config, library: str) -> dict[str, Any]:
         train_freq=(config.train_freq, "step"),
         gradient_steps=config.gradient_steps,
         ent_coef=f"auto_{config.initial_alpha}",
-        target_entropy="auto",
-        policy_kwargs=dict(net_arch=list(config.hidden_sizes), activation_fn=activation, **optimizer),
-        device=device,
+        target_entropy="auto" if config.target_entropy is None else float(config.target_entropy),
+        policy_kwargs=dict(net_arch=list(config.hidden_sizes), activation_fn=activation,
+                           optimizer_kwargs=dict(eps=config.adam_eps)),
+        device="cpu",
     )
 
 
@@ -215,15 +219,21 @@ def library_policy(model, library: str):
     return state.params, action
 
 
-def run_library(config, env_name: str, seeds: list[int], eval_every_steps: int, target: float,
-                library: str = "sb3") -> dict[str, Any]:
-    """SB3's SAC (``library="sb3"``) or sbx's (its JAX port), seed after seed, on the Gymnasium adapter."""
+def train_library_seeds(config, env_name: str, seeds: list[int], eval_every_steps: int, target: float,
+                        library: str, torch_threads: int) -> list[dict[str, Any]]:
+    """SB3's SAC (``library="sb3"``) or sbx's (its JAX port) on ``seeds``, one after another, on the
+    Gymnasium adapter; runs in a process of its own when seeds are split over processes."""
     import gymnasium as gym
+    import torch
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import DummyVecEnv
 
+    from wrl_jax.cli.machine import DEFAULT_XLA_OPT_LEVEL, apply_xla_opt_level
     from wrl_jax.wrappers.gymnasium_continuous import ContinuousGymEnv
 
+    apply_xla_opt_level(DEFAULT_XLA_OPT_LEVEL)  # a spawned process starts without it (the evaluation is JAX)
+    if torch_threads > 0:
+        torch.set_num_threads(torch_threads)
     if library == "sb3":
         from stable_baselines3 import SAC as LibrarySAC
     else:
@@ -272,11 +282,32 @@ def run_library(config, env_name: str, seeds: list[int], eval_every_steps: int, 
         per_seed.append({"seed": seed, "setup_seconds": setup, "train_seconds": wall,
                          "env_steps": int(model.num_timesteps), "first_target_step": probe.first,
                          "history": probe.history})
-    train_seconds = sum(s["train_seconds"] for s in per_seed)
+    return per_seed
+
+
+def run_library(config, env_name: str, seeds: list[int], eval_every_steps: int, target: float, library: str,
+                processes: int, torch_threads: int) -> dict[str, Any]:
+    """The library's seeds split over ``processes`` processes (seed ``i`` to process ``i mod processes``), one
+    PyTorch thread each by default: with 2 on this 2-core machine it uses both cores, as ours does. Its wall is the
+    slowest process's time in setup and training (evaluations excluded)."""
+    groups = [seeds[i::processes] for i in range(processes) if seeds[i::processes]]
+    args = (config, env_name)
+    tail = (eval_every_steps, target, library, torch_threads)
+    if len(groups) == 1:
+        results = [train_library_seeds(*args, groups[0], *tail)]
+    else:
+        import concurrent.futures
+        import multiprocessing
+
+        with concurrent.futures.ProcessPoolExecutor(len(groups), mp_context=multiprocessing.get_context("spawn")) as pool:
+            results = list(pool.map(train_library_seeds, *zip(*[(*args, g, *tail) for g in groups])))
+    per_seed = sorted((s for group in results for s in group), key=lambda s: s["seed"])
+    wall = max(sum(s["setup_seconds"] + s["train_seconds"] for s in group) for group in results)
     return {
-        "train_seconds": train_seconds,
-        "wall_seconds": train_seconds + sum(s["setup_seconds"] for s in per_seed),
-        "env_steps_per_second": sum(s["env_steps"] for s in per_seed) / train_seconds,
+        "processes": len(groups),
+        "wall_seconds": wall,
+        "train_seconds": wall,
+        "env_steps_per_second": sum(s["env_steps"] for s in per_seed) / wall,
         "first_target_step": [s["first_target_step"] for s in per_seed],
         "reached": all(s["first_target_step"] is not None for s in per_seed),
         "per_seed": per_seed,
@@ -298,8 +329,10 @@ def main() -> int:
     parser.add_argument("--libraries", nargs="*", default=["sb3"], choices=sorted(LIBRARIES),
                         help="the other side(s): sb3 (the test extras have it), sbx (its own venv, see the docstring)")
     parser.add_argument("--skip-ours", action="store_true", help="only the libraries")
+    parser.add_argument("--library-processes", type=int, default=2,
+                        help="processes SB3's seeds are split over (default 2: both cores; sbx uses one, XLA threads)")
     parser.add_argument("--torch-threads", type=int, default=1,
-                        help="PyTorch intra-op threads for SB3 (0 keeps PyTorch's default)")
+                        help="PyTorch intra-op threads per process for SB3 (0 keeps PyTorch's default)")
     parser.add_argument("--out", default=None,
                         help="JSON path (default bench/results/continuous/<libraries>_sac_<env>.json)")
     args = parser.parse_args()
@@ -338,19 +371,21 @@ def main() -> int:
         record["machine"]["load_after_ours"] = load_average()
     for library in args.libraries:
         import stable_baselines3
-        import torch
 
-        if args.torch_threads > 0:
-            torch.set_num_threads(args.torch_threads)
-        record["versions"].update(stable_baselines3=stable_baselines3.__version__, torch=torch.__version__,
-                                  torch_threads=torch.get_num_threads())
-        if library == "sbx":
+        record["versions"]["stable_baselines3"] = stable_baselines3.__version__
+        if library == "sb3":
+            import torch
+
+            record["versions"].update(torch=torch.__version__, torch_threads_per_process=args.torch_threads)
+        else:
             import sbx
 
             record["versions"]["sbx"] = sbx.__version__
-        print(f"{library}: {len(seeds)} seeds one after another, up to {config.total_timesteps:,} steps each",
-              flush=True)
-        side = record[library] = run_library(config, args.env, seeds, eval_steps, args.target, library)
+        processes = args.library_processes if library == "sb3" else 1
+        print(f"{library}: {len(seeds)} seeds over {processes} process(es), up to "
+              f"{config.total_timesteps:,} steps each", flush=True)
+        side = record[library] = run_library(config, args.env, seeds, eval_steps, args.target, library,
+                                             processes, args.torch_threads)
         side["achieved_gflops"] = record["flops_per_env_step"] * sum(
             s["env_steps"] for s in side["per_seed"]) / side["train_seconds"] / 1e9
         if "ours" in record:
@@ -377,7 +412,8 @@ def markdown(r: dict[str, Any]) -> str:
         "",
         f"`{r['command']}`; seeds {r['seeds']}, at most {r['max_env_steps_per_seed']:,} env steps each, evaluated "
         f"every {r['eval_every_steps']:,}; load average at start {r['machine']['load_at_start']}, at end "
-        f"{r['machine']['load_at_end']} ({r['machine']['cpu_count']} CPUs; matmul peak {r['cpu_peak_gflops']:.0f} "
+        f"{r['machine']['load_at_end']} ({r['machine']['cpu_count']} CPUs; processes per library: "
+        f"{ {k: r[k].get('processes', 1) for k, _ in sides[1:]} }; matmul peak {r['cpu_peak_gflops']:.0f} "
         f"GFLOP/s; {r['flops_per_env_step'] / 1e6:.1f} MFLOP per env step on every side).",
         "",
         "| | " + " | ".join(label for _, label in sides) + " |",

@@ -139,6 +139,7 @@ def test_squashed_gaussian_density_counts_tanh_and_the_box(corridor):
     (SACConfig, {"initial_alpha": 0.0}, "initial_alpha must be > 0"),
     (SACConfig, {"activation": "gelu"}, "activation must be one of"),
     (SACConfig, {"target_entropy": float("nan")}, "target_entropy must be a finite number or None"),
+    (SACConfig, {"target_entropy": 2.0}, "largest entropy of an action"),
     (SACConfig, {"buffer_size": 4, "num_envs": 8}, "buffer_size"),
     (TD3Config, {"policy_delay": 0}, "policy_delay must be a positive integer"),
     (TD3Config, {"noise_clip": -0.1}, "noise_clip must be >= 0"),

@@ -237,11 +237,12 @@ def test_continuous_learners_see_the_target_unless_told_otherwise(tmp_path):
         cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--observe-target", "True", "--out", str(tmp_path / "x")])
 
 
-def test_the_continuous_collision_penalty_is_a_flag_that_reaches_the_params(tmp_path):
+def test_the_continuous_collision_penalty_and_sacs_target_entropy_are_flags(tmp_path):
     command = cli_options.parse("ppo", ["--env", "Continuous-Warehouse-12x12-Dynamic-v0", "--collision-penalty", "-50",
                                         "--out", str(tmp_path / "c")])
     algo = build(command.spec, command.config, command.env)
     assert float(algo.env_params.collision_penalty) == -50.0
+    assert cli_options.parse("sac", ["--target-entropy", "-4", "--out", str(tmp_path / "t")]).config.target_entropy == -4.0
     with pytest.raises(ValueError, match="--collision-penalty: continuous options"):
         cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--collision-penalty", "-5", "--out", str(tmp_path / "x")])
 

@@ -3,7 +3,6 @@ environment's, bad actions fail clearly, and Stable-Baselines3's SAC trains on i
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import gymnasium as gym
@@ -72,7 +71,7 @@ def test_bad_actions_and_names_fail_clearly():
         ContinuousGymEnv("Warehouse-8x8-v0")
 
 
-def test_stable_baselines3_sac_trains_on_it(tmp_path):
+def test_stable_baselines3_sac_trains_on_it(tmp_path, monkeypatch):
     sb3 = pytest.importorskip("stable_baselines3")
     import torch
 
@@ -88,13 +87,25 @@ def test_stable_baselines3_sac_trains_on_it(tmp_path):
     assert action.shape == (2,) and np.all(np.abs(action) <= 1.0)
     # bench/sb3_sac.py evaluates SB3's policy with the family's JAX evaluation by reading its actor's weights:
     # the JAX function must act as SB3's own predict.
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-    from bench.sb3_sac import sb3_actor_params, sb3_deterministic_action
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2]))
+    from bench.sb3_sac import library_kwargs, sb3_actor_params, sb3_deterministic_action
 
     batch = np.stack([obs, *(env.step(env.action_space.sample())[0] for _ in range(7))])
     expected, _ = model.predict(batch, deterministic=True)
     np.testing.assert_allclose(np.asarray(sb3_deterministic_action(sb3_actor_params(model), batch)), expected,
                                atol=1e-5)
+    # ... and its SB3 model has our SAC's settings.
+    from wrl_jax.agents.off_policy_config import SAC_DEFAULT
+
+    config = SAC_DEFAULT.replace(buffer_size=1000, target_entropy=-3.0)
+    mapped = sb3.SAC("MlpPolicy", env, seed=0, **library_kwargs(config, "sb3"))
+    assert (mapped.learning_starts, mapped.batch_size, mapped.gradient_steps, mapped.train_freq.frequency,
+            mapped.buffer_size, mapped.gamma, mapped.tau) == (5000, 256, 2, 1, 1000, 0.99, 0.005)
+    assert mapped.target_entropy == -3.0 and float(mapped.log_ent_coef.detach().exp()) == pytest.approx(0.1)
+    assert [m.out_features for m in mapped.actor.latent_pi if isinstance(m, torch.nn.Linear)] == [128, 128]
+    assert mapped.lr_schedule(1.0) == pytest.approx(1e-3) and mapped.actor.optimizer.defaults["eps"] == 1e-8
+    with pytest.raises(ValueError, match="ReLU networks only"):
+        library_kwargs(config.replace(activation="tanh"), "sb3")
 
 
 def test_rgb_array_rendering_draws_the_jax_state():

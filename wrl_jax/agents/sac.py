@@ -8,7 +8,8 @@ The loop (collection, replay, the learning-starts switch) is
    with ``a' ~ pi(.|s')`` and the target critics ``Q'`` (Polyak copies), squared error.
 2. **Actor**: minimize ``alpha log pi(a|s) - min_j Q_j(s, a)`` with ``a ~ pi(.|s)`` reparameterized,
    through the critics just updated.
-3. **Temperature**: ``log alpha`` moves so that the policy's entropy tracks ``-|A|``.
+3. **Temperature**: ``log alpha`` moves so that the policy's entropy tracks the target (``-|A|`` unless
+   ``target_entropy`` says otherwise).
 4. Target critics: ``Q' <- tau Q + (1 - tau) Q'``.
 
 The policy is a tanh-squashed Gaussian. Its log-density counts every change of variables from
@@ -39,6 +40,15 @@ class SAC(OffPolicyActorCritic):
     name = "sac"
     config_cls = SACConfig
     has_stochastic_policy = True
+
+    def __init__(self, config: SACConfig, env: Any, env_params: Any):
+        super().__init__(config, env, env_params)
+        # No distribution on the box has more entropy than the uniform one, log(volume): a target at or above
+        # it would make the temperature grow without end.
+        most = self.log_action_scale + self.action_size * math.log(2.0)
+        if self.target_entropy >= most:
+            raise ValueError(f"SACConfig.target_entropy ({self.target_entropy}) must be below the largest entropy of "
+                             f"an action on {env.name}'s box, log(volume) = {most:.3f}")
 
     @property
     def actor_output_size(self) -> int:

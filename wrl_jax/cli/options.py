@@ -70,7 +70,8 @@ class EnvOptions:
     """continuous environments on fixed layouts: the way to the target around the shelves (its direction in the
     robot's frame, its length); needs --shaping geodesic"""
     collision_penalty: float | None = None
-    """continuous environments: reward of a step that touches a shelf, wall or obstacle (the contract's -10)"""
+    """continuous environments: added to the reward of a step that touches a shelf, wall or obstacle (the contract's
+    -10; the run's evaluation keeps the value, so its returns are not the contract's)"""
     randomize: bool | None = None
     """continuous environments: domain randomization (gains, start pose per episode; actuation, lidar noise per step)"""
     reward_type: str | None = None
