@@ -310,12 +310,16 @@ def main() -> int:
 
     suffix = "" if args.total_timesteps is None else f"_{config.total_timesteps}"
     out = Path(args.out) if args.out else ROOT / "bench" / "results" / f"sb3_dqn_{args.preset}{suffix}.json"
+    write_results(out, record, markdown(record))
+    return 0
+
+
+def write_results(out: Path, record: dict[str, Any], md: str) -> None:
+    """The run's JSON at ``out`` and its Markdown table beside it (also printed)."""
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(record, indent=2))
-    md = markdown(record)
     out.with_suffix(".md").write_text(md)
     print(md)
-    return 0
 
 
 def markdown(r: dict[str, Any]) -> str:

@@ -61,7 +61,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bench.sb3_dqn import load_average  # noqa: E402
+from bench.sb3_dqn import load_average, write_results  # noqa: E402
 
 
 def env_view(env_name: str) -> dict[str, Any]:
@@ -396,11 +396,7 @@ def main() -> int:
     tag = args.env.removeprefix("Continuous-Warehouse-").removesuffix("-v0").lower()
     name = "_".join(args.libraries) or "ours"
     out = Path(args.out) if args.out else ROOT / "bench" / "results" / "continuous" / f"{name}_sac_{tag}.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(record, indent=2))
-    md = markdown(record)
-    out.with_suffix(".md").write_text(md)
-    print(md)
+    write_results(out, record, markdown(record))
     return 0
 
 
