@@ -9,7 +9,6 @@ telescopes to the distance covered).
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import jax
@@ -169,13 +168,13 @@ def test_observe_route_points_down_the_field_in_the_robots_frame(study_12x12):
         make_named("12x12", shaping="geodesic", observe_route=1)
 
 
-def test_a_controller_that_steers_along_the_route_delivers_every_item_of_12x12(study_12x12):
+def test_a_controller_that_steers_along_the_route_delivers_every_item_of_12x12(study_12x12, monkeypatch):
     """The route's three values are enough to drive: turn towards the way, go when facing it (the rule of
     bench/investigations/continuous_route_rule.py, which docs/continuous.md cites). What the learner still has
     to do is find this, keep off corners, and time it."""
     from wrl_jax.envs.continuous import evaluation
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "bench" / "investigations"))
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[3] / "bench" / "investigations"))
     from continuous_route_rule import follow_route
 
     routed, routed_params = make_named("12x12", shaping="geodesic", observe_route=True)
