@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import jax.extend
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
@@ -194,17 +195,23 @@ class Trainer:
                 summary_shapes = jax.eval_shape(jax.vmap(self.evaluation.seed_summary), latest.episodes)
                 due = ((index + 1) % eval_every == 0) | (index + 1 == num_updates)
                 summary, latest = jax.lax.cond(
-                    due, evaluate, lambda r, i, l: (nan_like(summary_shapes), l), runners, index, latest
+                    due, evaluate, lambda r, i, kept: (nan_like(summary_shapes), kept), runners, index, latest
                 )
                 metrics = {**metrics, **summary}
             return (runners, latest), metrics
 
-        metric_shapes = jax.eval_shape(active, (runners, latest), start)[1]
+        # `active` is traced once: its jaxpr is the scan's body and gives the shapes of a skipped update's
+        # metrics (an `eval_shape` would trace the update and the evaluation a second time).
+        active_jaxpr, out_shapes = jax.make_jaxpr(active, return_shape=True)((runners, latest), start)
+        run_active = jax.extend.core.jaxpr_as_fun(active_jaxpr)
+
+        def traced_active(carry, index):
+            return jax.tree.unflatten(jax.tree.structure(out_shapes), run_active(*jax.tree.leaves((carry, index))))
 
         def body(carry, offset):
             index = start + offset
             return jax.lax.cond(
-                index < num_updates, active, lambda c, i: (c, nan_like(metric_shapes)), carry, index
+                index < num_updates, traced_active, lambda c, i: (c, nan_like(out_shapes[1])), carry, index
             )
 
         (runners, latest), metrics = jax.lax.scan(
