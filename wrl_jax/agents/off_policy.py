@@ -50,6 +50,7 @@ from wrl_jax.agents.networks import ACTIVATIONS, mlp_forward_flops
 from wrl_jax.agents.off_policy_config import OffPolicyConfig
 from wrl_jax.agents.replay import ReplayBuffer, Transition, n_step_sample
 from wrl_jax.core.environment import Environment
+from wrl_jax.core.tracing import traced_once
 
 
 @struct.dataclass
@@ -258,10 +259,10 @@ class OffPolicyActorCritic(Algorithm[OffPolicyRunner]):
         timesteps = first_step + config.num_envs * jnp.arange(config.train_freq, dtype=jnp.int32)
         runner, (sums, events) = jax.lax.scan(self._env_step, runner, timesteps)
         learning = first_step + config.steps_per_update > config.learning_starts
-        template = jax.eval_shape(self._train, runner, update_index)[1]
-        idle = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), template)
-        runner, losses = jax.lax.cond(learning, self._train, lambda r, i: (r, idle), runner,
-                                      update_index * config.gradient_steps)
+        first_index = update_index * config.gradient_steps
+        train, shapes = traced_once(self._train, runner, first_index)  # one trace: the branch and its shapes
+        idle = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes[1])
+        runner, losses = jax.lax.cond(learning, train, lambda r, i: (r, idle), runner, first_index)
         metrics = {**sum_episode_sums(sums).as_metrics(), **jax.tree.map(jnp.sum, events), **losses}
         return runner, jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), metrics)
 

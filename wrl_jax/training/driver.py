@@ -41,13 +41,13 @@ from pathlib import Path
 from typing import Any
 
 import jax
-import jax.extend
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
 from wrl_jax.agents.base import Algorithm
 from wrl_jax.core import evaluation as family_evaluation
+from wrl_jax.core.tracing import traced_once
 from wrl_jax.training import checkpoint, metrics_io
 from wrl_jax.training.log_rows import Convergence, metric_rows
 from wrl_jax.training.log_rows import describe as describe_rows
@@ -200,13 +200,8 @@ class Trainer:
                 metrics = {**metrics, **summary}
             return (runners, latest), metrics
 
-        # `active` is traced once: its jaxpr is the scan's body and gives the shapes of a skipped update's
-        # metrics (an `eval_shape` would trace the update and the evaluation a second time).
-        active_jaxpr, out_shapes = jax.make_jaxpr(active, return_shape=True)((runners, latest), start)
-        run_active = jax.extend.core.jaxpr_as_fun(active_jaxpr)
-
-        def traced_active(carry, index):
-            return jax.tree.unflatten(jax.tree.structure(out_shapes), run_active(*jax.tree.leaves((carry, index))))
+        # `active` is traced once: the scan's body, and the shapes of a skipped update's metrics.
+        traced_active, out_shapes = traced_once(active, (runners, latest), start)
 
         def body(carry, offset):
             index = start + offset
