@@ -168,7 +168,10 @@ class Trainer:
         )
 
     def empty_eval(self, runners: Any) -> LatestEval:
-        """A :class:`LatestEval` holding no evaluation yet (``update == 0``)."""
+        """A :class:`LatestEval` holding no evaluation yet (``update == 0``); with ``eval_every == 0`` the loop
+        never evaluates, so it holds none at all (tracing the evaluation for its shapes would cost seconds)."""
+        if not self.loop.eval_every:
+            return LatestEval(update=jnp.int32(0), episodes=None)
         signature = _signature(runners)
         if signature not in self._eval_shapes:
             self._eval_shapes[signature] = jax.eval_shape(self._evaluate, runners)
