@@ -198,31 +198,41 @@ def test_truncated_transition_stores_the_observation_before_the_reset(small_env)
 def test_td_target_stops_only_at_termination(small_env):
     env, params = small_env
     algo = DQN(dataclasses.replace(SMALL, loss="mse"), env, params)
-    online = algo.init_network(jax.random.PRNGKey(0))
-    target = algo.init_network(jax.random.PRNGKey(1))
-    hyper = algo.config.hyper(gamma=0.9, reward_scale=0.5)
-    obs = jax.random.uniform(jax.random.PRNGKey(2), (2, env.obs_size))
-    next_obs = jax.random.uniform(jax.random.PRNGKey(3), (2, env.obs_size))
-    batch = Transition(
-        obs=obs,
-        action=jnp.array([1, 2], jnp.int32),
-        reward=jnp.array([4.0, 4.0]),
-        next_obs=next_obs,
-        terminated=jnp.array([False, True]),
-    )
-    loss, _ = algo.loss_fn(online, target, hyper, batch)
-    q = np.asarray(algo.q_values(online, obs))[[0, 1], [1, 2]]
-    bootstrap = np.asarray(algo.q_values(target, next_obs[0])).max()
-    expected_target = np.array([0.5 * 4.0 + 0.9 * bootstrap, 0.5 * 4.0])
-    assert float(loss) == pytest.approx(float(np.mean(0.5 * (q - expected_target) ** 2)), rel=1e-5)
-
     # Double DQN picks the bootstrap action with the online network, values it with the target.
     double = DQN(dataclasses.replace(SMALL, loss="mse", double_dqn=True), env, params)
-    loss_double, _ = double.loss_fn(online, target, hyper, batch)
-    chosen = int(np.asarray(double.q_values(online, next_obs[0])).argmax())
-    bootstrap_double = np.asarray(double.q_values(target, next_obs[0]))[chosen]
+    hyper = algo.config.hyper(gamma=0.9, reward_scale=0.5)
+
+    @jax.jit
+    def losses_and_q_values():
+        """Both losses and every Q-value the expectations need, in one program (eagerly: dozens of compiles)."""
+        batch = Transition(
+            obs=jax.random.uniform(jax.random.PRNGKey(2), (2, env.obs_size)),
+            action=jnp.array([1, 2], jnp.int32),
+            reward=jnp.array([4.0, 4.0]),
+            next_obs=jax.random.uniform(jax.random.PRNGKey(3), (2, env.obs_size)),
+            terminated=jnp.array([False, True]),
+        )
+        online = algo.init_network(jax.random.PRNGKey(0))
+        target = algo.init_network(jax.random.PRNGKey(1))
+        return {
+            "loss": algo.loss_fn(online, target, hyper, batch)[0],
+            "loss_double": double.loss_fn(online, target, hyper, batch)[0],
+            "q": algo.q_values(online, batch.obs),
+            "next_target": algo.q_values(target, batch.next_obs[0]),
+            "next_online_double": double.q_values(online, batch.next_obs[0]),
+            "next_target_double": double.q_values(target, batch.next_obs[0]),
+        }
+
+    out = jax.tree.map(np.asarray, losses_and_q_values())
+    q = out["q"][[0, 1], [1, 2]]
+    bootstrap = out["next_target"].max()
+    expected_target = np.array([0.5 * 4.0 + 0.9 * bootstrap, 0.5 * 4.0])
+    assert float(out["loss"]) == pytest.approx(float(np.mean(0.5 * (q - expected_target) ** 2)), rel=1e-5)
+
+    chosen = int(out["next_online_double"].argmax())
+    bootstrap_double = out["next_target_double"][chosen]
     expected_double = np.array([0.5 * 4.0 + 0.9 * bootstrap_double, 0.5 * 4.0])
-    assert float(loss_double) == pytest.approx(float(np.mean(0.5 * (q - expected_double) ** 2)), rel=1e-5)
+    assert float(out["loss_double"]) == pytest.approx(float(np.mean(0.5 * (q - expected_double) ** 2)), rel=1e-5)
 
 
 def test_schedules_learning_starts_and_target_updates(small_env):
@@ -267,8 +277,9 @@ def test_checkpoint_round_trip_and_exact_resume(tmp_path, small_env):
 
     stopped = training.run(trainer, tmp_path / "resumed", metadata=meta, stop_after=40)
     assert not stopped.finished and stopped.updates_done == 40
-    # A fresh process would build a new trainer; the checkpoint is all it needs.
-    resumed = training.run(training.Trainer(algo, seeds, loop), tmp_path / "resumed", metadata=meta, resume=True)
+    # The checkpoint is all the resumed run reads: a Trainer holds compiled programs, no run state (so the same
+    # one serves, as in tests/training/test_training.py, and nothing recompiles).
+    resumed = training.run(trainer, tmp_path / "resumed", metadata=meta, resume=True)
     assert resumed.finished
     # The replay buffer, optimizer, target network, env states and keys all round-trip: bit-identical.
     assert tree_equal(straight.runners, resumed.runners)

@@ -1,4 +1,9 @@
-"""PPO: learning, truncation bootstrapping, determinism, presets, config validation, pieces."""
+"""PPO: learning, truncation bootstrapping, determinism, presets, config validation, pieces.
+
+Compiling is most of the cost: the truncation and seeds tests compile two training programs each (they
+cannot share one: a batch of one seed and a batch of three round differently, and 60 updates amplify that
+past the seeds test's tolerance), and each piece test below them compiles one program, not one per operation.
+"""
 
 from __future__ import annotations
 
@@ -104,17 +109,18 @@ def test_truncation_is_bootstrapped_not_terminated():
 
 def test_gae_bootstraps_truncation_and_cuts_the_trace():
     gamma, lam = 0.9, 0.5
-    reward = jnp.array([[1.0], [1.0], [1.0]])
-    value = jnp.array([[0.5], [0.5], [0.5]])
-    next_value = jnp.array([[0.5], [7.0], [0.5]])  # step 1 reached a state worth 7, then an auto-reset
-    truncated = jnp.array([[False], [True], [False]])
-    terminated = jnp.zeros_like(truncated)
-    adv = ppo.gae(reward, value, next_value, terminated, truncated | terminated, gamma, lam)
+    gae = jax.jit(ppo.gae)  # one program for both calls (eager, every operation compiles on its own)
+    reward = np.array([[1.0], [1.0], [1.0]], np.float32)
+    value = np.array([[0.5], [0.5], [0.5]], np.float32)
+    next_value = np.array([[0.5], [7.0], [0.5]], np.float32)  # step 1 reached a state worth 7, then an auto-reset
+    truncated = np.array([[False], [True], [False]])
+    terminated = np.zeros_like(truncated)
+    adv = gae(reward, value, next_value, terminated, truncated | terminated, gamma, lam)
     delta = np.array([1 + 0.9 * 0.5 - 0.5, 1 + 0.9 * 7.0 - 0.5, 1 + 0.9 * 0.5 - 0.5])
     expected = [delta[0] + gamma * lam * delta[1], delta[1], delta[2]]  # trace cut after step 1
     np.testing.assert_allclose(np.asarray(adv)[:, 0], expected, rtol=1e-6)
     # Treating the truncation as termination drops the 7.0.
-    adv_term = ppo.gae(reward, value, next_value, truncated, truncated, gamma, lam)
+    adv_term = gae(reward, value, next_value, truncated, truncated, gamma, lam)
     assert float(adv_term[1, 0]) == pytest.approx(1.0 - 0.5)
 
 
@@ -167,29 +173,46 @@ def test_invalid_configs_raise_before_compiling(change, message):
 
 
 def test_forward_is_the_shared_mlp():
+    """Every observation encoding's networks, features and both forward passes in one compiled program (jitted
+    one by one, or op by op, the same checks compiled a dozen programs)."""
     env, params = wrl_jax.make("Warehouse-12x12-v0")
-    obs = jax.vmap(lambda k: env.reset(k, params)[0])(jax.random.split(jax.random.PRNGKey(0), 16))
-    obs = obs.at[3, 4:7].set(jnp.array([-1 / 11, -1 / 11, 1.0], jnp.float32))  # a carrying observation
+    algos = {name: PPO(dataclasses.replace(ppo_config.DEFAULT, obs_encoding=name), env, params)
+             for name in ppo_config.OBS_ENCODINGS}
+
+    @jax.jit
+    def forward_both_ways(key, init_key):
+        obs = jax.vmap(lambda k: env.reset(k, params)[0])(jax.random.split(key, 16))
+        obs = obs.at[3, 4:7].set(jnp.array([-1 / 11, -1 / 11, 1.0], jnp.float32))  # a carrying observation
+        out = {}
+        for obs_encoding, algo in algos.items():
+            networks = algo.unflatten(algo.init(init_key).params)
+            features = encoding.encode_observation(obs, env, obs_encoding)
+            out[obs_encoding] = {
+                "networks": networks,
+                "features": features,
+                "round_trip": algo.unflatten(algo.flatten(networks))["actor"]["params"]["Dense_0"]["kernel"],
+                **{name: (algo.forward(networks[name], obs),
+                          MLP(algo.config.hidden_sizes, size, algo.config.activation).apply(networks[name], features))
+                   for name, size in (("actor", 4), ("critic", 1))},
+            }
+        return out
+
+    out = forward_both_ways(jax.random.PRNGKey(0), jax.random.PRNGKey(1))
     for obs_encoding in ppo_config.OBS_ENCODINGS:
-        algo = PPO(dataclasses.replace(ppo_config.DEFAULT, obs_encoding=obs_encoding), env, params)
-        networks = algo.unflatten(jax.jit(algo.init)(jax.random.PRNGKey(1)).params)
-        features = jax.jit(encoding.encode_observation, static_argnums=(1, 2))(obs, env, obs_encoding)
-        assert features.shape[-1] == encoding.encoded_size(env, obs_encoding)
-        for name, out in (("actor", 4), ("critic", 1)):
-            mlp = MLP(algo.config.hidden_sizes, out, algo.config.activation)
-            # Jitted: op by op, the same check compiles every primitive on its own (seconds on 2 cores).
-            np.testing.assert_allclose(
-                jax.jit(algo.forward)(networks[name], obs), jax.jit(mlp.apply)(networks[name], features), atol=1e-5
-            )
-        assert np.array_equal(algo.unflatten(algo.flatten(networks))["actor"]["params"]["Dense_0"]["kernel"],
-                              networks["actor"]["params"]["Dense_0"]["kernel"])
-    onehot = encoding.encode_observation(obs, env, "onehot")
-    assert np.all(np.asarray(onehot[:, :78]).sum(-1) == 6)  # one 1 per coordinate
+        result = out[obs_encoding]
+        assert result["features"].shape[-1] == encoding.encoded_size(env, obs_encoding)
+        for name in ("actor", "critic"):
+            forward, mlp = result[name]
+            np.testing.assert_allclose(forward, mlp, atol=1e-5)
+        assert np.array_equal(result["round_trip"], result["networks"]["actor"]["params"]["Dense_0"]["kernel"])
+    onehot = np.asarray(out["onehot"]["features"])
+    assert np.all(onehot[:, :78].sum(-1) == 6)  # one 1 per coordinate
 
 
 def test_orthonormal_columns_match_householder_qr():
-    a = jax.random.normal(jax.random.PRNGKey(0), (64, 20))
-    q = np.asarray(initializers.orthonormal_columns(a), np.float64)
+    a, q = jax.jit(lambda key: (a := jax.random.normal(key, (64, 20)), initializers.orthonormal_columns(a)))(
+        jax.random.PRNGKey(0))
+    q = np.asarray(q, np.float64)
     np.testing.assert_allclose(q.T @ q, np.eye(20), atol=1e-5)
     q_ref, r_ref = np.linalg.qr(np.asarray(a, np.float64))
     np.testing.assert_allclose(q, q_ref * np.sign(np.diag(r_ref)), atol=1e-5)

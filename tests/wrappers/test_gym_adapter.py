@@ -22,6 +22,8 @@ from wrl_jax.wrappers.gymnasium_vector import WarehouseVectorEnv
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # in case pygame is installed: no window needed
 
 IDS = ["wrl_jax/Warehouse-8x8-v0", "wrl_jax/Warehouse-12x12-v0"]
+RENDER = jax.jit(render_frame, static_argnums=2)
+"""The expected frames, one program per shape for every rendering test (eagerly, each frame compiles op by op)."""
 
 # A 4x4 layout with ONE item: every reset is the same, whatever the random stream,
 # so a Gymnasium SyncVectorEnv of single envs must match the vector env exactly.
@@ -197,7 +199,7 @@ def test_render_modes():
     env.step(1)
     frame = env.render()
     assert frame.shape == (64, 64, 3) and frame.dtype == np.uint8
-    np.testing.assert_array_equal(frame, np.asarray(render_frame(env.state, env.params, 8)))
+    np.testing.assert_array_equal(frame, np.asarray(RENDER(env.state, env.params, 8)))
     text = WarehouseGymEnv("Warehouse-8x8-v0", render_mode="ansi")
     text.reset(options={"item_index": 2})
     assert text.render().splitlines()[2].split()[0] == "."
@@ -216,7 +218,7 @@ def test_human_mode_needs_pygame():
         env.reset(seed=0)
         env.step(1)
         shown = pygame.surfarray.array3d(pygame.display.get_surface()).swapaxes(0, 1)
-        expected = jax.jit(render_frame, static_argnums=2)(env.state, env.params, 8)
+        expected = RENDER(env.state, env.params, 8)
         np.testing.assert_array_equal(shown, np.asarray(expected))
         env.close()
         env.close()  # closing twice is allowed
@@ -331,8 +333,8 @@ def test_vector_env_bad_actions_and_render():
     frames = venv.render()
     assert len(frames) == 3
     for i, frame in enumerate(frames):
-        state = jax.tree.map(lambda leaf: leaf[i], venv.states)
-        np.testing.assert_array_equal(frame, np.asarray(jax.jit(render_frame, static_argnums=2)(state, venv.params, 8)))
+        state = jax.tree.map(lambda leaf: np.asarray(leaf)[i], venv.states)
+        np.testing.assert_array_equal(frame, np.asarray(RENDER(state, venv.params, 8)))
     with pytest.raises(ValueError, match="num_envs"):
         WarehouseVectorEnv(0)
 

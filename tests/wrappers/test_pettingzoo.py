@@ -23,7 +23,7 @@ def test_steps_are_the_jax_fleets_and_the_shift_ends():
     jax_env, params = wrl_jax.make("Fleet-12x12-v0", num_robots=2, max_steps=12)
     # The same first key (the adapter's generator, seeded the same way) gives the same first observation.
     key = jax.random.key(int(np.random.default_rng(3).integers(0, 2**31 - 1)))
-    first, state = jax_env.reset(key, params)
+    first, state = jax.jit(jax_env.reset)(key, params)  # eagerly, the fleet's reset compiles op by op
     np.testing.assert_array_equal(np.stack([obs["robot_0"], obs["robot_1"]]), np.asarray(first))
     steps, ended = 0, False
     while not ended:

@@ -1,4 +1,10 @@
-"""The JAX environment: SPEC.md semantics, auto-reset, batching, switches, errors."""
+"""The JAX environment: SPEC.md semantics, auto-reset, batching, switches, errors.
+
+Compiling is the cost here: the tests step through :func:`jitted` (one program per static configuration and
+method, shared by every test; eagerly, each call compiled its operations one by one) and read the results as
+NumPy arrays. ``test_bad_action_and_item_index_raise`` calls the methods themselves (their checks run before
+any operation).
+"""
 
 import jax
 import jax.numpy as jnp
@@ -9,6 +15,23 @@ import wrl_jax
 from wrl_jax.envs.warehouse import registration, routes
 
 UP, DOWN, LEFT, RIGHT = range(4)
+_JITTED: dict = {}
+
+
+def jitted(env, method: str):
+    """``jax.jit(env.<method>)``, one per static configuration (size, item capacity, carrying flag) and method.
+
+    Environments made with other constants differ only in their default params, which these methods do not
+    read (every call passes ``params``), so one program serves them all.
+    """
+    key = (env.static_config(), method)
+    if key not in _JITTED:
+        _JITTED[key] = jax.jit(getattr(env, method))
+    return _JITTED[key]
+
+
+def transition(env, state, action, params):
+    return jitted(env, "transition")(None, state, action, params)
 
 
 def small():
@@ -38,9 +61,10 @@ def test_overrides_reach_params():
 def test_reset_observation(env_and_params):
     env, params = env_and_params
     n = env.size - 1
-    obs, state = env.reset_to_item(1, params)
-    item = np.asarray(params.items[1])
+    obs, state = jitted(env, "reset_to_item")(1, params)
+    item = np.asarray(params.items)[1]
     expected = np.array([0, 0, n, n, item[0], item[1]], dtype=np.float32) / np.float32(n)
+    obs = np.asarray(obs)
     np.testing.assert_array_equal(obs[:6], expected)
     assert obs.dtype == jnp.float32 and obs.shape == (7,) and obs[6] == 0.0
     assert int(state.time) == 0 and not bool(state.carrying)
@@ -48,16 +72,16 @@ def test_reset_observation(env_and_params):
 
 def test_pick_and_deliver_rewards():
     env, params = small()
-    _, state = env.reset_to_item(0, params)
-    obs, state, reward, term, trunc, info = env.transition(None, state, RIGHT, params)
+    _, state = jitted(env, "reset_to_item")(0, params)
+    obs, state, reward, term, trunc, info = transition(env, state, RIGHT, params)
     assert float(reward) == -0.5 + 2.0  # one step closer to the item
-    obs, state, reward, term, trunc, info = env.transition(None, state, RIGHT, params)
+    obs, state, reward, term, trunc, info = transition(env, state, RIGHT, params)
     assert bool(info["picked_up"]) and bool(state.carrying)
     assert float(reward) == -0.5 + 2.0 + 50.0
     assert obs[4] == obs[5] == np.float32(-1.0) / np.float32(2.0) and obs[6] == 1.0
-    obs, state, reward, term, trunc, info = env.transition(None, state, DOWN, params)
+    obs, state, reward, term, trunc, info = transition(env, state, DOWN, params)
     assert float(reward) == -0.5 + 2.0 and not bool(term)
-    obs, state, reward, term, trunc, info = env.transition(None, state, DOWN, params)
+    obs, state, reward, term, trunc, info = transition(env, state, DOWN, params)
     assert bool(term) and not bool(trunc) and bool(info["delivered"])
     assert float(reward) == 2.0 + 200.0  # no step penalty on the terminating transition
     assert obs[6] == 1.0 and obs[4] == np.float32(-0.5)  # final obs still shows the item carried
@@ -65,12 +89,12 @@ def test_pick_and_deliver_rewards():
 
 def test_collision_and_wall_bump():
     env, params = small()
-    _, state = env.reset_to_item(0, params)
-    _, state, reward, _, _, info = env.transition(None, state, UP, params)
+    _, state = jitted(env, "reset_to_item")(0, params)
+    _, state, reward, _, _, info = transition(env, state, UP, params)
     assert bool(info["wall_bump"]) and not bool(info["collision"])
     assert float(reward) == -0.5 and tuple(state.pos) == (0, 0)
-    _, state, _, _, _, _ = env.transition(None, state, DOWN, params)
-    _, state, reward, _, _, info = env.transition(None, state, RIGHT, params)  # into the shelf at (1,1)
+    _, state, _, _, _, _ = transition(env, state, DOWN, params)
+    _, state, reward, _, _, info = transition(env, state, RIGHT, params)  # into the shelf at (1,1)
     assert bool(info["collision"]) and tuple(state.pos) == (1, 0)
     # target is the item at (0,2): distance unchanged, so -0.5 - 10
     assert float(reward) == -10.5
@@ -78,16 +102,16 @@ def test_collision_and_wall_bump():
 
 def test_wall_penalty_parameter():
     env, params = wrl_jax.make_from_layout("S.0\n.#.\n..G", max_steps=5, wall_penalty=-3.0)
-    _, state = env.reset_to_item(0, params)
-    _, _, reward, _, _, _ = env.transition(None, state, LEFT, params)
+    _, state = jitted(env, "reset_to_item")(0, params)
+    _, _, reward, _, _, _ = transition(env, state, LEFT, params)
     assert float(reward) == -3.5
 
 
 def test_collision_bug_puts_robot_on_the_shelf():
     env, params = wrl_jax.make_from_layout("S.0\n.#.\n..G", max_steps=5, collision_bug=True)
-    _, state = env.reset_to_item(0, params)
-    _, state, _, _, _, _ = env.transition(None, state, DOWN, params)
-    _, state, reward, _, _, info = env.transition(None, state, RIGHT, params)
+    _, state = jitted(env, "reset_to_item")(0, params)
+    _, state, _, _, _, _ = transition(env, state, DOWN, params)
+    _, state, reward, _, _, info = transition(env, state, RIGHT, params)
     assert bool(info["collision"]) and tuple(state.pos) == (1, 1)
     # shaping now sees the shelf cell: one step closer to the item at (0,2)
     assert float(reward) == -0.5 - 10.0 + 2.0
@@ -95,25 +119,25 @@ def test_collision_bug_puts_robot_on_the_shelf():
 
 def test_truncation_and_time():
     env, params = small()
-    _, state = env.reset_to_item(0, params)
+    _, state = jitted(env, "reset_to_item")(0, params)
     for t in range(1, 6):
-        _, state, _, term, trunc, _ = env.transition(None, state, UP, params)
+        _, state, _, term, trunc, _ = transition(env, state, UP, params)
         assert int(state.time) == t and not bool(term)
         assert bool(trunc) == (t == 5)
 
 
 def test_delivery_on_last_step_is_terminated_not_truncated():
     env, params = wrl_jax.make_from_layout("S.0\n.#.\n..G", max_steps=4)
-    _, state = env.reset_to_item(0, params)
+    _, state = jitted(env, "reset_to_item")(0, params)
     for action in (RIGHT, RIGHT, DOWN, DOWN):
-        _, state, _, term, trunc, _ = env.transition(None, state, action, params)
+        _, state, _, term, trunc, _ = transition(env, state, action, params)
     assert bool(term) and not bool(trunc)
 
 
 def test_auto_reset_keeps_final_observation():
     env, params = small()
-    _, state = env.reset_to_item(0, params)
-    step = jax.jit(env.step)
+    _, state = jitted(env, "reset_to_item")(0, params)
+    step = jitted(env, "step")
     key = jax.random.key(0)
     for action in (RIGHT, RIGHT, DOWN):
         obs, state, *_ = step(key, state, action, params)
@@ -126,20 +150,21 @@ def test_auto_reset_keeps_final_observation():
 
 def test_reset_draws_every_item_uniformly(env_and_params):
     env, params = env_and_params
-    keys = jax.random.split(jax.random.key(3), 20_000)
-    _, states = jax.vmap(env.reset, in_axes=(0, None))(keys, params)
-    counts = np.bincount(np.asarray(states.item_index), minlength=int(params.num_items))
+    _, states = jax.jit(lambda key: jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(key, 20_000), params))(
+        jax.random.key(3))
+    states = jax.tree.map(np.asarray, states)
+    counts = np.bincount(states.item_index, minlength=int(params.num_items))
     k = int(params.num_items)
     assert len(counts) == k and counts.min() > 0
     # chi-square against uniform, generous bound (p << 1e-6 to fail by chance)
     expected = 20_000 / k
     assert ((counts - expected) ** 2 / expected).sum() < 3 * k + 60
-    np.testing.assert_array_equal(states.item_pos, params.items[states.item_index])
+    np.testing.assert_array_equal(states.item_pos, np.asarray(params.items)[states.item_index])
 
 
 def test_bad_action_and_item_index_raise():
     env, params = small()
-    _, state = env.reset_to_item(0, params)
+    _, state = jitted(env, "reset_to_item")(0, params)
     for bad in (4, -1, 1.5, 2.0, True, "up", 10**20):
         with pytest.raises(ValueError, match="action"):
             env.transition(None, state, bad, params)
@@ -201,11 +226,8 @@ def test_same_program_serves_every_layout_of_a_size():
 def test_oracle_delivers_every_item_optimally(name):
     env, params = wrl_jax.make(name)
     layout = registration.spec(name).layout
-    tables = routes.route_tables(params)
-    optimal = np.asarray(routes.optimal_lengths(params, tables))
-    np.testing.assert_array_equal(optimal, wrl_jax.optimal_route_lengths(layout))
 
-    def episode(item_index):
+    def episode(item_index, tables):
         _, state = env.reset_to_item(item_index, params)
 
         def body(carry, _):
@@ -221,7 +243,15 @@ def test_oracle_delivers_every_item_optimally(name):
         (state, done, ret, steps, collisions), _ = jax.lax.scan(body, init, None, length=int(params.max_steps))
         return done, ret, steps, collisions
 
-    done, ret, steps, collisions = jax.jit(jax.vmap(episode))(jnp.arange(layout.num_items))
+    @jax.jit
+    def oracle_episodes():
+        """The route tables, their optimal lengths and every item's oracle episode: one program."""
+        tables = routes.route_tables(params)
+        episodes = jax.vmap(episode, in_axes=(0, None))(jnp.arange(layout.num_items), tables)
+        return routes.optimal_lengths(params, tables), episodes
+
+    optimal, (done, ret, steps, collisions) = jax.tree.map(np.asarray, oracle_episodes())
+    np.testing.assert_array_equal(optimal, wrl_jax.optimal_route_lengths(layout))
     assert bool(done.all()) and int(collisions.sum()) == 0
     np.testing.assert_array_equal(steps, optimal)
     # closed form of SPEC.md: 250.5 - 0.5 L + 2 (M(start, item) + M(item, goal))
@@ -247,27 +277,27 @@ def test_draw_item_is_exact_multiply_shift():
     keys = jax.random.split(jax.random.key(11), 4096)
     words = np.asarray(jax.vmap(lambda k: jax.random.bits(k, (), jnp.uint32))(keys)).astype(np.uint64)
     words = np.concatenate([words, [0, 2**32 - 1, 2**31, 2**16 - 1]]).astype(np.uint64)
+    draw = jax.jit(jax.vmap(draw_item, in_axes=(0, None)))  # one program for every count (its params are traced)
+    edges = jax.jit(lambda w, c: ((w >> 16) * c + (((w & 0xFFFF) * c) >> 16)) >> 16)
     for count in (1, 2, 7, 10, 20, 62, 2**16 - 1):
         _, params = wrl_jax.make("Warehouse-8x8-v0")
-        params = params.replace(num_items=jnp.asarray(count, jnp.int32))
-        drawn = np.asarray(jax.vmap(draw_item, in_axes=(0, None))(keys, params))
+        params = params.replace(num_items=np.asarray(count, np.int32))
+        drawn = np.asarray(draw(keys, params))
         np.testing.assert_array_equal(drawn, (words[:4096] * count) >> 32)
         # the edge words, through the same arithmetic on uint32 arrays
-        w = jnp.asarray(words[4096:].astype(np.uint32))
-        c = jnp.uint32(count)
-        edge = ((w >> 16) * c + (((w & 0xFFFF) * c) >> 16)) >> 16
+        edge = edges(words[4096:].astype(np.uint32), np.uint32(count))
         np.testing.assert_array_equal(np.asarray(edge), (words[4096:] * count) >> 32)
 
 
 def test_step_to_item_pins_the_next_episode():
     env, params = small()
-    _, state = env.reset_to_item(0, params)
+    _, state = jitted(env, "reset_to_item")(0, params)
     for action in (RIGHT, RIGHT, DOWN):
-        _, state, *_ = env.step_to_item(state, action, 0, params)
-    obs, state, _, term, _, info = env.step_to_item(state, DOWN, 0, params)
+        _, state, *_ = jitted(env, "step_to_item")(state, action, 0, params)
+    obs, state, _, term, _, info = jitted(env, "step_to_item")(state, DOWN, 0, params)
     assert bool(term) and int(state.item_index) == 0 and int(state.time) == 0
-    keyed = env.step(jax.random.key(5), state, UP, params)
-    pinned = env.step_to_item(state, UP, 0, params)
+    keyed = jitted(env, "step")(jax.random.key(5), state, UP, params)
+    pinned = jitted(env, "step_to_item")(state, UP, 0, params)
     for a, b in zip(jax.tree.leaves(keyed), jax.tree.leaves(pinned)):
         np.testing.assert_array_equal(a, b)  # no episode end: the key changes nothing
 

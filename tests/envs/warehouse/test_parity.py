@@ -66,11 +66,21 @@ def _episode_stream(env: Warehouse, params, key, item_index, random_actions, use
     return reset_obs, stream
 
 
-@functools.lru_cache(maxsize=None)
+_BATCHED_ROLLOUTS: dict[tuple, object] = {}
+
+
 def batched_rollout(env: Warehouse):
-    """``jit(vmap(...))`` of :func:`_episode_stream` over episodes, one compile per env shape."""
-    fn = functools.partial(_episode_stream, env)
-    return jax.jit(jax.vmap(fn, in_axes=(None, 0, 0, 0, 0)))
+    """``jit(vmap(...))`` of :func:`_episode_stream` over episodes, one compile per env shape.
+
+    Keyed by the environment's static configuration, not the environment: two environments made with other
+    reward constants differ only in their default params (so they are unequal, and a cache keyed by them
+    would compile once per configuration), and the rollout reads only the params it is passed.
+    """
+    key = env.static_config()
+    if key not in _BATCHED_ROLLOUTS:
+        _BATCHED_ROLLOUTS[key] = jax.jit(jax.vmap(functools.partial(_episode_stream, env),
+                                                  in_axes=(None, 0, 0, 0, 0)))
+    return _BATCHED_ROLLOUTS[key]
 
 
 @functools.lru_cache(maxsize=None)
@@ -219,6 +229,7 @@ def test_auto_reset_observation_is_a_reference_reset():
     env, params = wrl_jax.make("Warehouse-8x8-v0", max_steps=3)
     ref = make_reference("Warehouse-8x8-v0", max_steps=3)
     step = jax.jit(env.step)
+    draw = jax.jit(draw_item)  # eagerly, each of the 40 draws would run op by op
     _, state = env.reset_to_item(0, params)
     ref.reset(options={"item_index": 0})
     drawn = set()
@@ -231,7 +242,7 @@ def test_auto_reset_observation_is_a_reference_reset():
         assert bool(truncated) == ref_truncated == (t % 3 == 2)
         if ref_truncated:
             # The JAX key drew this item; the reference reset to it must give the same observation.
-            expected_item = int(draw_item(key, params))
+            expected_item = int(draw(key, params))
             assert int(state.item_index) == expected_item
             ref_reset, _ = ref.reset(options={"item_index": expected_item})
             assert_bitwise_equal("auto-reset obs", obs, ref_reset)
