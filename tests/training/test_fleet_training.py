@@ -1,4 +1,8 @@
-"""Multi-agent PPO on the fleet (IPPO, and MAPPO's centralized critic): learning, bits, the critic, the CLI."""
+"""Multi-agent PPO on the fleet (IPPO, and MAPPO's centralized critic): learning, bits, the critic, the CLI.
+
+Programs shared: the module fixture ``fleet_run`` runs ``train_ppo.py``'s command (:data:`FLEET_ARGV`, 3 seeds);
+the same-seed test trains the command's configuration and environment in a batch of 3 seeds too, so its
+``init`` and chunk programs are the command's (served by the session's compilation cache)."""
 
 from __future__ import annotations
 
@@ -25,16 +29,26 @@ TINY = dataclasses.replace(ppo_config.FLEET, num_envs=4, num_steps=8, num_miniba
                            hidden_sizes=(16, 16), total_timesteps=4 * 8 * 2)
 
 
-def _train(config, seeds, env_name="Fleet-12x12-v0", num_robots=2, **env_overrides):
-    env, params = wrl_jax.make(env_name, num_robots=num_robots, **env_overrides)
-    trainer = training.Trainer(PPO(config, env, params), seeds, training.LoopConfig(eval_every=0, progress=False))
-    return trainer, training.run(trainer)
+FLEET_ARGV = ["--env", "Fleet-12x12-v0", "--num-robots", "2", "--critic", "centralized", "--num-envs", "4",
+              "--num-steps", "8", "--num-minibatches", "2", "--update-epochs", "1", "--hidden-sizes", "16", "16",
+              "--total-timesteps", "64", "--num-seeds", "3", "--seed", "3", "--eval-every", "0"]
+"""The command of ``fleet_run``: TINY with the centralized critic, the fleet preset's environment, seeds 3, 4, 5."""
 
 
-def test_same_seed_same_bits_and_seeds_differ():
-    """Centralized critic, two robots: a repeated seed reproduces every parameter bit; seeds differ."""
+def test_same_seed_same_bits_and_seeds_differ(fleet_run):
+    """Centralized critic, two robots: a repeated seed reproduces every parameter bit; seeds differ.
+
+    ``fleet_run``'s configuration and environment (``fleet_run`` is requested first so that its programs, the
+    same as this batch of 3 seeds', are compiled once)."""
+    from wrl_jax.cli.options import parse
+
+    command = parse("ppo", [*FLEET_ARGV, "--out", str(fleet_run[0].parent / "parsed")])
     config = dataclasses.replace(TINY, critic="centralized")
-    trainer, first = _train(config, [3, 3, 4])
+    assert command.config == config
+    env, params = wrl_jax.make("Fleet-12x12-v0", **command.env.overrides())
+    assert env.num_robots == 2
+    trainer = training.Trainer(PPO(config, env, params), [3, 3, 4], training.LoopConfig(eval_every=0, progress=False))
+    first = training.run(trainer)
     again = training.run(trainer)  # the same program run again from scratch
     params = np.asarray(first.runners.params)
     np.testing.assert_array_equal(params[0], params[1])
@@ -47,11 +61,11 @@ def test_centralized_critic_reads_the_global_state_and_the_actor_does_not():
     local = PPO(TINY, env, params)
     central = PPO(dataclasses.replace(TINY, critic="centralized"), env, params)
     assert central.num_params - local.num_params == env.global_state_size() * TINY.hidden_sizes[0]
-    obs, state = env.reset(jax.random.key(0), params)
-    other = state.replace(pos=state.pos[::-1])  # the same robots, placed differently
 
     @jax.jit
     def outputs(key):
+        obs, state = env.reset(jax.random.key(0), params)
+        other = state.replace(pos=state.pos[::-1])  # the same robots, placed differently
         networks = central._init_networks(key)
         values = central.forward(networks["critic"], obs, env.global_state(state, params))
         moved = central.forward(networks["critic"], obs, env.global_state(other, params))
@@ -65,15 +79,25 @@ def test_centralized_critic_reads_the_global_state_and_the_actor_does_not():
 def test_the_reached_global_state_is_kept_for_the_bootstrap_of_a_truncated_shift():
     """``info["final_global_state"]`` is the global state of the reached state, also when the shift auto-resets."""
     env, params = wrl_jax.make("Fleet-12x12-v0", num_robots=2, max_steps=2)
-    _, state = env.reset(jax.random.key(0), params)
-    step = jax.jit(env.step)
-    for t in range(2):
-        action = jnp.array([1, 3], jnp.int32)
-        _, reached, *_ = env.transition(jax.random.key(9), state, action, params)
-        obs, state, _, _, truncated, info = step(jax.random.key(t), state, action, params)
-        np.testing.assert_array_equal(info["final_global_state"][:-1], global_state(reached, params)[:-1])
-    assert bool(truncated) and float(info["final_global_state"][-1]) == 1.0  # the shift's elapsed fraction
-    assert float(env.global_state(state, params)[-1]) == 0.0  # while the state itself is the fresh shift
+
+    @jax.jit
+    def shift():
+        """Two steps of a 2-step shift, in one program: per step the reached state's global state, the step's
+        info and the global state of the state the step returns."""
+        _, state = env.reset(jax.random.key(0), params)
+        out = []
+        for t in range(2):
+            action = jnp.array([1, 3], jnp.int32)
+            _, reached, *_ = env.transition(jax.random.key(9), state, action, params)
+            _, state, _, _, truncated, info = env.step(jax.random.key(t), state, action, params)
+            out.append((global_state(reached, params), info["final_global_state"], truncated,
+                        env.global_state(state, params)))
+        return out
+
+    for reached_global, final_global, truncated, state_global in jax.device_get(shift()):
+        np.testing.assert_array_equal(final_global[:-1], reached_global[:-1])
+    assert bool(truncated) and float(final_global[-1]) == 1.0  # the shift's elapsed fraction
+    assert float(state_global[-1]) == 0.0  # while the state itself is the fresh shift
 
 
 def test_bad_fleet_configurations_fail_before_compiling():
@@ -119,10 +143,7 @@ def fleet_run(tmp_path_factory):
     re-evaluation below reuses its compiled programs; without the periodic evaluation (the final report is
     what these tests read)."""
     out = tmp_path_factory.mktemp("fleet") / "run"
-    argv = ["--env", "Fleet-12x12-v0", "--num-robots", "2", "--critic", "centralized", "--num-envs", "4",
-            "--num-steps", "8", "--num-minibatches", "2", "--update-epochs", "1", "--hidden-sizes", "16", "16",
-            "--total-timesteps", "64", "--num-seeds", "2", "--eval-every", "0", "--out", str(out),
-            "--no-progress", "--no-plot"]
+    argv = [*FLEET_ARGV, "--out", str(out), "--no-progress", "--no-plot"]
     printed = io.StringIO()
     with contextlib.redirect_stdout(printed):
         assert cli_train.main("ppo", argv) == 0
@@ -135,7 +156,7 @@ def test_a_fleet_run_reports_the_planners_beside_the_policy(fleet_run):
     ev = summary["eval"]
     for key in ("throughput", "pibt_throughput", "greedy_throughput", "sampled_throughput", "upper_bound"):
         assert isinstance(ev[key], float) and ev[key] >= 0.0, key
-    assert ev["episodes_per_seed"] >= 100 and len(ev["per_seed"]) == 2 and ev["num_robots"] == 2
+    assert ev["episodes_per_seed"] >= 100 and len(ev["per_seed"]) == 3 and ev["num_robots"] == 2  # 3 seeds
     assert 0.0 < ev["pibt_throughput"] <= ev["upper_bound"] * 1.05
     # The sampled policy's own counts: per seed (their mean is the overall figure), and its seeds at PIBT.
     per_seed_sampled = [row["sampled_throughput"] for row in ev["per_seed"]]

@@ -1,4 +1,9 @@
-"""The shared training driver: chunking, exact resume, evaluation, convergence bookkeeping."""
+"""The shared training driver: chunking, exact resume, evaluation, convergence bookkeeping.
+
+Compiled programs are the cost here, so the tests share them: ``reference`` (one chunk of 7 updates) and
+``chunked`` (chunks of 2, the same seeds) are the module's two trainers; the chunk-size, resume and TensorBoard
+tests all run ``chunked`` (one compiled chunk program), and the ``log_every`` check's trainer differs from it
+only in ``log_every``, which the chunk program does not read (same program: the persistent cache serves it)."""
 
 from __future__ import annotations
 
@@ -52,10 +57,16 @@ def reference(algo):
     return trainer, training.run(trainer)
 
 
-def test_chunk_size_does_not_change_results(algo, reference):
+@pytest.fixture(scope="module")
+def chunked(algo):
+    """The same seeds in chunks of 2 updates (2, 2, 2, then 1 of the last chunk's 2): one compiled program that
+    the chunk-size, resume and TensorBoard tests share."""
+    return training.Trainer(algo, SEEDS, training.LoopConfig(chunk_updates=2, eval_every=3, progress=False))
+
+
+def test_chunk_size_does_not_change_results(chunked, reference):
     _, ref = reference
-    trainer = training.Trainer(algo, SEEDS, training.LoopConfig(chunk_updates=3, eval_every=3, progress=False))
-    result = training.run(trainer)
+    result = training.run(chunked)
     assert result.updates_done == ref.updates_done == 7
     assert leaves_equal(result.runners, ref.runners)
     assert rows_equal(result.rows, ref.rows)
@@ -69,9 +80,9 @@ def test_make_train_matches_the_chunked_driver(algo, reference):
     assert metrics["episodes"].shape == (len(SEEDS), TINY.num_updates)
 
 
-def test_exact_resume_from_a_chunk_boundary(algo, reference, tmp_path):
+def test_exact_resume_from_a_chunk_boundary(chunked, reference, tmp_path):
     _, ref = reference
-    trainer = training.Trainer(algo, SEEDS, training.LoopConfig(chunk_updates=2, eval_every=3, progress=False))
+    trainer = chunked
     meta = {"algo": "ppo", "config": {"note": "test"}}
     first = training.run(trainer, tmp_path, metadata=meta, stop_after=3)
     assert first.updates_done == 4 and not first.finished  # rounded up to the chunk boundary
@@ -115,13 +126,17 @@ def test_metric_rows_and_evaluations(algo, reference):
 
 
 def test_log_every_aggregates_sums_and_means(algo):
-    trainer = training.Trainer(algo, [0], training.LoopConfig(chunk_updates=4, log_every=2, eval_every=0, progress=False))
+    """Two chunks of 2 updates, logged every 2: one row per chunk and seed, sums and means of its 2 updates.
+    ``chunked``'s settings but for ``log_every`` (which only :meth:`Trainer.metric_rows` reads): its program."""
+    trainer = training.Trainer(algo, SEEDS, training.LoopConfig(chunk_updates=2, log_every=2, eval_every=3,
+                                                                progress=False))
     runners = trainer.init()
-    _, metrics, _ = trainer.run_chunk(runners, 0)
-    rows = trainer.metric_rows(metrics, 0)
+    runners, first, latest = trainer.run_chunk(runners, 0)
+    _, second, _ = trainer.run_chunk(runners, 2, latest)
+    rows = [row for row in trainer.metric_rows(first, 0) + trainer.metric_rows(second, 2) if row["seed"] == SEEDS[0]]
     assert [row["update"] for row in rows] == [2, 4]
-    assert rows[0]["episodes"] == pytest.approx(metrics["episodes"][:2, 0].sum())
-    assert rows[1]["loss"] == pytest.approx(metrics["loss"][2:4, 0].mean())
+    assert rows[0]["episodes"] == pytest.approx(first["episodes"][:2, 0].sum())
+    assert rows[1]["loss"] == pytest.approx(second["loss"][:2, 0].mean())  # updates 3 and 4
 
 
 def test_loop_config_validation():
@@ -164,13 +179,13 @@ def oracle_greedy(env):
 @pytest.mark.parametrize("name, optimum", [("Warehouse-8x8-v0", 14.0), ("Warehouse-12x12-v0", 22.0)])
 def test_evaluation_of_an_optimal_policy(name, optimum):
     env, params = wrl_jax.make(name)
-    result = jax.jit(lambda p: evaluation.evaluate_policy(oracle_greedy(env), p.shelves, env, p))(params)
-    summary = evaluation.summarize(jax.tree.map(lambda x: x[None], result), seeds=[7])
+    result, scalars = jax.jit(lambda p: (lambda r: (r, evaluation.seed_summary(r)))(
+        evaluation.evaluate_policy(oracle_greedy(env), p.shelves, env, p)))(params)
+    summary = evaluation.summarize(jax.tree.map(lambda x: np.asarray(x)[None], result), seeds=[7])
     assert summary["success_rate"] == 1.0 and summary["optimal_rate"] == 1.0 and summary["all_seeds_optimal"]
     assert summary["mean_steps"] == optimum == summary["optimal_mean_steps"]
     assert summary["collision_free_rate"] == 1.0 and summary["stage_switch_rate"] == 1.0
     assert len(summary["rows"]) == int(params.num_items)
-    scalars = evaluation.seed_summary(result)
     assert float(scalars["eval_all_optimal"]) == 1.0
     table = evaluation.format_table3(summary, "oracle", [1000])
     assert "100.0%" in table and f"{optimum:.2f}" in table
@@ -178,16 +193,17 @@ def test_evaluation_of_an_optimal_policy(name, optimum):
 
 def test_evaluation_of_bad_policies():
     env, params = wrl_jax.make("Warehouse-8x8-v0", max_steps=20)
+    # Both policies' episodes in one compiled program (eagerly, every operation compiles on its own).
+    right, down = jax.jit(lambda p: [evaluation.evaluate_policy(lambda _, obs: jnp.int32(action), None, env, p)
+                                     for action in (3, 1)])(params)
     # Always "right" from (0, 0): picks up item 0 at (0, 6), reaches (0, 7) and bumps the wall 13 times.
-    right = evaluation.evaluate_policy(lambda _, obs: jnp.int32(3), None, env, params)
     assert not bool(right.delivered.any())
     assert (np.asarray(right.steps) == 20).all()
     assert int(right.pickup_step[0]) == 6 and int(right.wall_bumps[0]) == 13
     assert (np.asarray(right.pickup_step[1:]) == -1).all()
     # Always "down" from (0, 0) then stuck at (7, 0): item 5 at (4, 0) on the way.
-    down = evaluation.evaluate_policy(lambda _, obs: jnp.int32(1), None, env, params)
     assert int(down.pickup_step[5]) == 4
-    summary = evaluation.summarize(jax.tree.map(lambda x: x[None], down))
+    summary = evaluation.summarize(jax.tree.map(lambda x: np.asarray(x)[None], down))
     assert summary["success_rate"] == 0.0 and summary["mean_steps"] is None
     assert summary["stage_switch_rate"] == 0.0
 
@@ -201,11 +217,12 @@ def test_evaluation_counts_collisions():
         row = jnp.round(obs[0] * 7)
         return jnp.where(carrying, jnp.int32(1), jnp.where(row < 1, jnp.int32(1), jnp.int32(3)))
 
-    result = evaluation.evaluate_policy(policy, None, env, params)
+    result, summary = jax.jit(lambda p: (lambda r: (r, evaluation.seed_summary(r)))(
+        evaluation.evaluate_policy(policy, None, env, p)))(params)
     # item 1: down to (1, 0), right to (1, 3) picks it up at step 4, then down into the shelf until truncation.
     assert int(result.pickup_step[1]) == 4
     assert int(result.collisions[1]) == 12 - 4
-    assert float(evaluation.seed_summary(result)["eval_collision_free_rate"]) < 1.0
+    assert float(summary["eval_collision_free_rate"]) < 1.0
 
 
 def _tensorboard_scalars(run_dir, seed) -> dict[str, dict[int, float]]:
@@ -232,9 +249,9 @@ def _tensorboard_scalars(run_dir, seed) -> dict[str, dict[int, float]]:
     return scalars
 
 
-def test_tensorboard_events_match_the_metric_rows_across_a_resume(algo, reference, tmp_path):
+def test_tensorboard_events_match_the_metric_rows_across_a_resume(chunked, reference, tmp_path):
     _, ref = reference
-    trainer = training.Trainer(algo, SEEDS, training.LoopConfig(chunk_updates=2, eval_every=3, progress=False))
+    trainer = chunked
     training.run(trainer, tmp_path, stop_after=3)
     # Curves written past the checkpoint by a run that then crashed must disappear on resume.
     from tensorboardX import SummaryWriter

@@ -252,6 +252,21 @@ def test_observation_by_hand():
     assert window[2].sum() == 0.0  # both items lie outside robot 0's window
 
 
+@functools.partial(jax.jit, static_argnums=0)
+def feature_rollout(env, params):
+    """64 steps of 4 robots under random actions, from the same keys for every env (the observation-feature tests
+    compare an env with a feature against the plain one, whose rollout they share): per step the observation,
+    ``final_obs``, positions, actions, blocks, rewards and truncation."""
+
+    def step(state, key):
+        action = jax.random.randint(key, (4,), 0, 5)
+        obs, state, reward, _, truncated, info = env.step(key, state, action, params)
+        return state, (obs, info["final_obs"], state.pos, action, info["robot_block"], reward, truncated)
+
+    _, state = env.reset(jax.random.key(4), params)
+    return jax.lax.scan(step, state, jax.random.split(jax.random.key(5), 64))[1]
+
+
 def test_priority_channel_shows_the_robots_with_a_lower_index():
     """``observe_priority``: FLEET_SPEC's observation unchanged, then a channel of the lower-index robots in view,
     on the vmapped step (compact masks, auto-reset included) and on ``get_obs``; it changes nothing else."""
@@ -260,21 +275,11 @@ def test_priority_channel_shows_the_robots_with_a_lower_index():
     assert env.obs_size == plain_env.obs_size + 25 and env.static_config() != plain_env.static_config()
     assert env.observation_space(params).shape == (4, env.obs_size)
 
-    def rollout(env):
-        def step(carry, key):
-            state = carry
-            obs, state, reward, _, truncated, info = env.step(key, state, jax.random.randint(key, (4,), 0, 5), params)
-            return state, (obs, info["final_obs"], state.pos, reward, truncated)
-
-        keys = jax.random.split(jax.random.key(5), 64)
-        _, state = env.reset(jax.random.key(4), params)
-        return jax.lax.scan(step, state, keys)[1]
-
-    obs, final_obs, pos, reward, truncated = jax.tree.map(np.asarray, jax.jit(functools.partial(rollout, env))())
-    plain = jax.tree.map(np.asarray, jax.jit(functools.partial(rollout, plain_env))())
+    obs, final_obs, pos, _, _, reward, truncated = jax.device_get(feature_rollout(env, params))
+    plain = jax.device_get(feature_rollout(plain_env, params))
     np.testing.assert_array_equal(obs[..., :plain_env.obs_size], plain[0])
     np.testing.assert_array_equal(final_obs[..., :plain_env.obs_size], plain[1])
-    np.testing.assert_array_equal(reward, plain[3])
+    np.testing.assert_array_equal(reward, plain[5])
     assert truncated.sum() == 3  # auto-resets happened in the rollout
     priority = obs[..., plain_env.obs_size:].reshape(64, 4, 5, 5)
     expected = np.zeros_like(priority)
@@ -302,20 +307,11 @@ def test_last_action_memory_is_the_previous_action_and_its_block():
     assert env.obs_size == plain_env.obs_size + 6 and env.static_config() != plain_env.static_config()
     assert "last_action" in env.state_space(params).spaces and "observe_last_action=True" in repr(env)
 
-    def rollout(env):
-        def step(state, key):
-            action = jax.random.randint(key, (4,), 0, 5)
-            obs, state, reward, _, truncated, info = env.step(key, state, action, params)
-            return state, (obs, info["final_obs"], action, info["robot_block"], reward, truncated)
-
-        _, state = env.reset(jax.random.key(4), params)
-        return jax.lax.scan(step, state, jax.random.split(jax.random.key(5), 64))[1]
-
-    obs, final_obs, action, blocked, reward, truncated = jax.tree.map(np.asarray, jax.jit(functools.partial(rollout, env))())
-    plain = jax.tree.map(np.asarray, jax.jit(functools.partial(rollout, plain_env))())
+    obs, final_obs, _, action, blocked, reward, truncated = jax.device_get(feature_rollout(env, params))
+    plain = jax.device_get(feature_rollout(plain_env, params))
     np.testing.assert_array_equal(obs[..., :plain_env.obs_size], plain[0])
     np.testing.assert_array_equal(final_obs[..., :plain_env.obs_size], plain[1])
-    np.testing.assert_array_equal(reward, plain[4])
+    np.testing.assert_array_equal(reward, plain[5])
     expected_final = np.concatenate([np.eye(5, dtype=np.float32)[action], blocked[..., None]], axis=-1)
     np.testing.assert_array_equal(final_obs[..., plain_env.obs_size:], expected_final)
     expected = np.where(truncated[:, None, None], 0.0, expected_final)  # a new shift remembers nothing
@@ -338,19 +334,10 @@ def test_heading_channel_shows_where_the_others_would_go_by_repeating_their_last
     env, _ = make_fleet(maps.FLEET_12X12, 4, max_steps=20, observe_headings=True)
     assert env.obs_size == plain_env.obs_size + 25 and "observe_headings=True" in repr(env)
 
-    def rollout(env):
-        def step(state, key):
-            action = jax.random.randint(key, (4,), 0, 5)
-            obs, state, reward, _, truncated, info = env.step(key, state, action, params)
-            return state, (obs, state.pos, action, reward, truncated)
-
-        _, state = env.reset(jax.random.key(4), params)
-        return jax.lax.scan(step, state, jax.random.split(jax.random.key(5), 64))[1]
-
-    obs, pos, action, reward, truncated = jax.tree.map(np.asarray, jax.jit(functools.partial(rollout, env))())
-    plain = jax.tree.map(np.asarray, jax.jit(functools.partial(rollout, plain_env))())
+    obs, _, pos, action, _, reward, truncated = jax.device_get(feature_rollout(env, params))
+    plain = jax.device_get(feature_rollout(plain_env, params))
     np.testing.assert_array_equal(obs[..., :plain_env.obs_size], plain[0])
-    np.testing.assert_array_equal(reward, plain[3])
+    np.testing.assert_array_equal(reward, plain[5])
     headings = obs[..., plain_env.obs_size:].reshape(64, 4, 5, 5)
     expected = np.zeros_like(headings)
     for t in range(64):
@@ -534,14 +521,12 @@ def test_fast_draws_are_jax_random_bits():
     np.testing.assert_array_equal(bits, fast_bits)
 
 
-@pytest.mark.parametrize("typed_keys", [True, False], ids=["typed", "legacy"])
-def test_vmapped_step_is_the_generic_step_bit_for_bit(typed_keys):
-    """``Fleet.step`` (unrolled draws, lazy auto-reset, compact observation select) against the base
-    class's ``Environment.step`` (``jax.random.split``, ``reset_env``, ``jnp.where`` on observations),
-    vmapped over fleets whose shift clocks differ, so that some truncate while others go on."""
+@functools.partial(jax.jit, static_argnums=(0, 2))
+def fast_and_generic_rollouts(env, params, typed_keys):
+    """``Fleet.step`` and the base class's ``Environment.step`` on the same fleets, keys and actions, in one
+    program (the set-up inside it too: eagerly, each of its operations would compile on its own)."""
     from wrl_jax.core.environment import Environment
 
-    env, params = make_fleet(maps.FLEET_12X12, 8, max_steps=12)
     num_envs, num_steps = 24, 30
     make_key = jax.random.key if typed_keys else jax.random.PRNGKey
     _, state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(make_key(0), num_envs), params)
@@ -558,8 +543,17 @@ def test_vmapped_step_is_the_generic_step_bit_for_bit(typed_keys):
 
         return jax.lax.scan(body, state, (keys, actions))
 
-    fast = jax.device_get(jax.jit(lambda: rollout(env.step))())
-    generic = jax.device_get(jax.jit(lambda: rollout(functools.partial(Environment.step, env)))())
+    return rollout(env.step), rollout(functools.partial(Environment.step, env))
+
+
+@pytest.mark.parametrize("typed_keys", [True, False], ids=["typed", "legacy"])
+def test_vmapped_step_is_the_generic_step_bit_for_bit(typed_keys):
+    """``Fleet.step`` (unrolled draws, lazy auto-reset, compact observation select) against the base
+    class's ``Environment.step`` (``jax.random.split``, ``reset_env``, ``jnp.where`` on observations),
+    vmapped over fleets whose shift clocks differ, so that some truncate while others go on."""
+    num_envs = 24
+    env, params = make_fleet(maps.FLEET_12X12, 8, max_steps=12)
+    fast, generic = jax.device_get(fast_and_generic_rollouts(env, params, typed_keys))
     assert int(np.asarray(fast[1][3]).sum()) >= num_envs  # truncations happened, at different steps
     for a, b in zip(jax.tree.leaves(fast), jax.tree.leaves(generic)):
         a, b = np.asarray(a), np.asarray(b)
