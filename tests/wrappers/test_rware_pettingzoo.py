@@ -11,10 +11,16 @@ from wrl_jax.wrappers.rware_gymnasium import next_key, reset_jit, transition_jit
 from wrl_jax.wrappers.rware_pettingzoo import RwareParallelEnv, parallel_env
 
 
-@pytest.mark.parametrize("overrides", [{}, {"msg_bits": 2}, {"observation_type": "dict", "msg_bits": 1},
-                                       {"observation_type": "image_dict"}])
+@pytest.mark.filterwarnings("ignore:.*precision lowered by casting:UserWarning")  # rware's normalised Box
+@pytest.mark.parametrize("overrides", [
+    {}, {"msg_bits": 2}, {"observation_type": "dict", "msg_bits": 2, "normalised_coordinates": True},
+    {"observation_type": "image_dict", "image_observation_directional": False, "sensor_range": 2,
+     "image_observation_layers": ["accessible", "shelves", "accessible"]},
+])
 def test_parallel_api_test_passes(overrides):
-    # tiny-4ag, as the Gymnasium adapter's tests: the programs are shared when both run in one process.
+    # tiny-4ag, as the Gymnasium adapter's tests (the dict and image_dict settings are those of
+    # test_rware_observation_types.py::test_gymnasium_adapter_has_rwares_surface): the programs are shared when
+    # they run in one process, and the session's compilation cache serves the compiles in another.
     env = parallel_env("rware-tiny-4ag-v2", max_steps=150, **overrides)
     assert env.possible_agents == ["agent_0", "agent_1", "agent_2", "agent_3"]
     parallel_api_test(env, num_cycles=200)  # past the episode's end: agents empty, then reset

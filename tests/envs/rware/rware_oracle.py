@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import contextlib
 
-import jax
 import numpy as np
 import pytest
+import rware_jit
 
 nx = pytest.importorskip("networkx")
 pytest.importorskip("rware")
@@ -26,9 +26,10 @@ from wrl_jax.envs.rware.env import Rware  # noqa: E402
 
 __all__ = ["Action", "Direction", "RewardType", "Warehouse"]
 
-STEP = jax.jit(Rware.transition_with, static_argnums=0)
-"""One compiled step per static configuration (the env is a static argument, its params explicit)."""
-OBSERVE = jax.jit(Rware.get_obs, static_argnums=0)
+STEP = rware_jit.jit(Rware.transition_with, static_argnums=0)
+"""One compiled step per static configuration (the env is a static argument, its params explicit), compiled at
+LLVM level 0 (``rware_jit``: these runs are a few hundred steps, compiling is their time)."""
+OBSERVE = rware_jit.jit(Rware.get_obs, static_argnums=0)
 
 CUSTOM_LAYOUT = """
 g..x.x..g

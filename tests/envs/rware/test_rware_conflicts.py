@@ -6,6 +6,9 @@ chains into one cell. The reference builds the graph as rware does (``add_edge(s
 agent by agent, components, ``find_cycle`` / ``dag_longest_path`` on the subgraph copy): unpatched
 networkx for ``tie_order="set"`` (its node order is CPython's hash-set order in small components),
 the insertion-ordered copy for ``tie_order="insertion"``.
+
+Programs: one per grid, tie order and agent count (:func:`resolver`, cached, compiled at LLVM level 0 by
+``rware_jit``); ``test_unrolled_rotation``'s 4 agents on the 3 x 3 grid reuse the crowds' programs of that size.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import functools
 import jax
 import numpy as np
 import pytest
+import rware_jit
 import rware_oracle as oracle
 
 from wrl_jax.envs.rware.conflicts import resolve_moves
@@ -74,11 +78,15 @@ def _tied(sub) -> bool:
     return False
 
 
+@functools.cache
 def resolver(side: int, tie_order: str, height: int | None = None):
+    """One jitted function per grid and tie order (each agent count its own program), shared by the tests."""
     grid_size = (side if height is None else height, side)
-    return jax.jit(jax.vmap(functools.partial(resolve_moves, grid_size=grid_size, tie_order=tie_order)))
+    return rware_jit.jit(jax.vmap(functools.partial(resolve_moves, grid_size=grid_size, tie_order=tie_order)))
 
 
+CASES = 300
+"""Crowds per test case (one batch, one program per size)."""
 ALL_KINDS = {"head_on", "rotation", "tie", "chain", "stay"}
 
 
@@ -99,7 +107,7 @@ CROWDS = [
                          + [(*crowd_, "insertion") for crowd_ in CROWDS if crowd_[1] in (3, 4, 12)])
 def test_resolve_matches_networkx(side, agents, kinds, tie_order):
     rng = np.random.default_rng(side * 100 + agents)
-    starts, targets = crowd(rng, side, agents, 300)
+    starts, targets = crowd(rng, side, agents, CASES)
     ours = np.asarray(resolver(side, tie_order)(starts, targets))
     other_order = "insertion" if tie_order == "set" else "set"
     seen, orders_differ = set(), 0
@@ -118,7 +126,9 @@ def test_unrolled_rotation(tie_order):
     """Four agents rotating around a 2x2 block all move; one more queued behind the cycle (array form) waits."""
     side = 3
     cycle_starts, cycle_targets = [0, 1, 4, 3], [1, 4, 3, 0]  # (0,0) -> (1,0) -> (1,1) -> (0,1) -> (0,0)
-    ours = np.asarray(resolver(side, tie_order)(np.array([cycle_starts]), np.array([cycle_targets])))[0]
+    # (the case repeated to the crowds' batch: test_resolve_matches_networkx[3-4-...]'s program)
+    batch = np.array([cycle_starts] * CASES), np.array([cycle_targets] * CASES)
+    ours = np.asarray(resolver(side, tie_order)(*batch))[0]
     assert ours.tolist() == [True] * 4 == reference(cycle_starts, cycle_targets, side, tie_order)[0]
     starts, targets = [*cycle_starts, 6], [*cycle_targets, 3]  # (0,2) drives into the cycle's (0,1)
     ours = np.asarray(resolver(side, tie_order)(np.array([starts]), np.array([targets])))[0]

@@ -13,6 +13,9 @@ directional on and off, custom layer lists (every layer, with a repeat), 2 and 4
 normalised coordinates, the tiny map and custom ones (square for the transposed layers, where rware
 does not fail).
 
+Programs: one step and one observation per configuration (``rware_oracle.STEP``, ``OBSERVE``), one batched
+episode per type in the jit-and-vmap test, all compiled at LLVM level 0 (``rware_jit``).
+
 Knobs: ``WRL_RWARE_OBS_STEPS`` (steps per configuration, default 45) and ``WRL_RWARE_OBS_ALL=1``
 (every combination of type, range, direction, layers, agent count and messages).
 """
@@ -26,8 +29,10 @@ import warnings
 
 import gymnasium as gym
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
+import rware_jit
 import rware_oracle as oracle
 from rware.warehouse import ImageLayer, ObservationType
 
@@ -259,15 +264,26 @@ def test_spaces_shapes_and_batches_under_jit_and_vmap():
         env, params = wrl_jax.make("rware-tiny-2ag-v2", observation_type=kind, msg_bits=2 if kind == "dict" else 0,
                                    sensor_range=2, **extra)
         space = env.observation_space(params)
-        obs, state = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))(jax.random.split(jax.random.key(0), 3), params)
         action = np.zeros((3, 2, 3) if kind == "dict" else (3, 2), np.int32)
-        step = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
+
+        @rware_jit.jit  # the batched reset and three batched steps: one program per type
+        def episode(params, env=env, action=action):
+            _, state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(jax.random.key(0), 3), params)
+
+            def step(state, t):
+                obs, state, _, _, _, info = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
+                    jax.random.split(jax.random.key(t + 1), 3), state, action, params)
+                return state, (obs, info["final_global_state"])
+
+            return jax.lax.scan(step, state, jnp.arange(3))[1]
+
+        observations, global_states = episode(params)
         for t in range(3):
-            obs, state, _, _, _, info = step(jax.random.split(jax.random.key(t + 1), 3), state, action, params)
             for b in range(3):
-                single = jax.tree.map(lambda leaf: leaf[b], obs)
+                single = jax.tree.map(lambda leaf: leaf[t, b], observations)
                 assert bool(space.contains(single))
                 assert jax.tree.map(lambda leaf: leaf.shape, single) == shapes(space)
+        info = {"final_global_state": global_states[-1]}
         assert info["final_global_state"].shape == (3, 2 * env.obs_size)
         assert env.onehot_coordinates() is None
         if kind == "image":

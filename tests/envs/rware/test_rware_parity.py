@@ -10,6 +10,9 @@ hash-set order in small components, which our default ``tie_order="set"`` emulat
 such ties, ``set_order_tie``); ``tie_order="insertion"`` is checked against rware with networkx
 keeping insertion order in ``subgraph`` (``rware_oracle.insertion_order``).
 
+Programs: one step per static configuration (``rware_oracle.STEP``), compiled at LLVM level 0 (``rware_jit``:
+the same results, a third of the compile time; these runs are a few hundred steps).
+
 Knobs: ``WRL_RWARE_PARITY_STEPS`` (steps per configuration, default 30), and
 ``WRL_RWARE_PARITY_ALL=1`` for every size x 2..19 agents (by default :data:`CI_COUNTS`, the sizes and
 request-queue settings taking turns, so that every size and every setting (-easy, default, -hard) is covered).

@@ -1,16 +1,22 @@
 """The scripted RWARE team (``wrl_jax.envs.rware.scripted``): its parts, that it delivers far above a random team
 on the evaluation's episodes, that it plays by the rules (valid actions, no bump into a shelf, no wasted toggle),
-and ``python -m wrl_jax.plan --planner scripted``."""
+and ``python -m wrl_jax.plan --planner scripted``.
+
+Programs: the tests' own (the rules' episodes, the two state-policy runs in one program) and small-4ag's teams
+(``TEAM_EPISODES``) compile at LLVM level 0 (``rware_jit``); tiny-4ag's teams (``team_and_random``) compile as the
+plan command compiles them, and its test runs that environment: the command's programs come from the caches."""
 
 from __future__ import annotations
 
 import collections
+import functools
 import json
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import rware_jit
 
 from wrl_jax.cli import plan as plan_cli
 from wrl_jax.core import registry
@@ -18,6 +24,8 @@ from wrl_jax.envs.rware import evaluation, make_rware, scripted
 from wrl_jax.envs.rware.types import FORWARD, NUM_ACTIONS, TOGGLE_LOAD
 
 STEP_X, STEP_Y = np.array(scripted.STEP_X), np.array(scripted.STEP_Y)
+TEAM_EPISODES = rware_jit.fast(scripted.team_episodes, (0,), ("num_episodes", "horizon", "seed", "team"))
+"""``scripted.team_episodes`` compiled at LLVM level 0 (``rware_jit``); the same numbers, in less compile time."""
 
 
 def python_bfs(seed: np.ndarray, passable: np.ndarray) -> np.ndarray:
@@ -66,18 +74,42 @@ def test_a_state_policy_leaves_the_environment_draws_alone():
     """``sees_state`` changes only what the policy reads: the same actions give the same episodes, bit for bit."""
     env, params = registry.make("rware-tiny-2ag-v2")
     forward = jnp.full(env.num_agents, FORWARD, jnp.int32)
-    by_obs = evaluation.run_episodes(lambda obs: forward, env, params, 2, 40)
-    by_state = evaluation.run_episodes(lambda key, state: forward, env, params, 2, 40, sees_state=True)
+
+    @rware_jit.jit  # both runs in one program
+    def both(params):
+        return (evaluation.run_episodes(lambda obs: forward, env, params, 2, 40),
+                evaluation.run_episodes(lambda key, state: forward, env, params, 2, 40, sees_state=True))
+
+    by_obs, by_state = both(params)
     for a, b in zip(jax.tree.leaves(by_obs), jax.tree.leaves(by_state)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+PLAN_ENV, PLAN_EPISODES = "rware-tiny-4ag-v2", 4
+"""The plan command's test runs these: its programs are those of the delivery test's tiny-4ag team."""
+
+
+@functools.cache
+def team_and_random(name: str):
+    """The scripted and the random team on the evaluation's first 4 episodes (500 steps) of ``name``, as NumPy.
+
+    For the plan command's environment, compiled as the command compiles (its own calls, at the session's level),
+    so that the command's programs come from the compilation caches; for the others, at LLVM level 0."""
+    env, params = registry.make(name)
+    if name == PLAN_ENV:
+        static = {"num_episodes": PLAN_EPISODES, "horizon": 500, "seed": 0}
+        team = scripted.team_episodes.lower(env, params, team="scripted", **static).compile()(params)
+        random = scripted.team_episodes(env, params, team="random", **static)
+    else:
+        team = TEAM_EPISODES(env, params, num_episodes=4)
+        random = TEAM_EPISODES(env, params, num_episodes=4, team="random")
+    return jax.device_get((team, random))
 
 
 @pytest.mark.parametrize("name, floor", [("rware-tiny-4ag-v2", 40.0), ("rware-small-4ag-v2", 28.0)])
 def test_the_scripted_team_delivers_far_above_a_random_team(name, floor):
     """On the evaluation's first 4 episodes (on its 32: 29.8, 58.2, 40.8, worst 27, 52, 38; random 0.03 to 0.06)."""
-    env, params = registry.make(name)
-    team = jax.device_get(scripted.team_episodes(env, params, 4))
-    random = jax.device_get(scripted.team_episodes(env, params, 4, team="random"))
+    team, random = team_and_random(name)
     assert team.team_return.min() >= floor, team.team_return
     assert team.team_return.mean() >= random.team_return.mean() + floor
     assert np.all(team.deliveries > 0)  # every agent delivers in every episode: the evaluation's "solved"
@@ -91,7 +123,7 @@ def test_it_plays_by_the_rules():
     env, params = registry.make("rware-tiny-4ag-v2")
     height, width = params.grid_size
 
-    @jax.jit
+    @rware_jit.jit
     def episode(key):
         state = env.reset(key, params)[1]
 
@@ -127,17 +159,20 @@ def test_it_plays_by_the_rules():
 
 
 def test_plan_runs_the_scripted_team_and_reports(tmp_path, capsys):
+    """tiny-4ag, 4 episodes: the delivery test's programs (``team_and_random``), served by the caches."""
+    team, random = team_and_random(PLAN_ENV)
     out = tmp_path / "scripted.json"
-    argv = ["--planner", "scripted", "--env", "rware-tiny-2ag-v2", "--episodes", "2", "--json", str(out),
+    argv = ["--planner", "scripted", "--env", PLAN_ENV, "--episodes", str(PLAN_EPISODES), "--json", str(out),
             "--xla-opt-level", "-1"]
     assert plan_cli.main(argv) == 0
     printed = capsys.readouterr().out
-    assert "scripted on rware-tiny-2ag-v2, 2 agents, 2 episodes of 500 steps" in printed
+    assert "scripted on rware-tiny-4ag-v2, 4 agents, 4 episodes of 500 steps" in printed
     assert "team return" in printed and "random team" in printed and "deliveries per episode" in printed
     report = json.loads(out.read_text())
-    assert report["planner"] == "scripted" and report["episodes"] == 2 and report["horizon"] == 500
+    assert report["planner"] == "scripted" and report["episodes"] == 4 and report["horizon"] == 500
     assert report["return"] == report["deliveries"] >= 20 > report["random_return"]
-    assert report["solved"] and len(report["deliveries_per_agent"]) == 2
+    assert report["solved"] and len(report["deliveries_per_agent"]) == 4
+    assert report["return"] == float(team.team_return.mean()) and report["random_return"] == random.team_return.mean()
 
 
 @pytest.mark.parametrize(

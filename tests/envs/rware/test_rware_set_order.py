@@ -5,6 +5,9 @@ component with fewer than half of ``G``'s nodes is the iteration order of a set 
 tuples (networkx 3.6.1, CPython 3.11). The emulation is held to real objects: the tuple hash,
 sets filled one key at a time and refilled from another set (as networkx does), and whole move
 graphs with crowds, chains, stationary agents and cycles.
+
+Programs: compiled at LLVM level 0 (``rware_jit``); ``component_rank`` one per grid width and agent count
+(:func:`compiled`), the largest-component cases on the grids of ``test_component_rank_is_networkx_component_copy_order``.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import rware_jit
 
 from wrl_jax.envs.rware.set_order import (
     NEIGHBOURS,
@@ -41,7 +45,7 @@ def halves(values: list[int]) -> tuple[np.ndarray, np.ndarray]:
 
 def test_tuple_hash_is_pythons_on_every_pair_up_to_200():
     x, y = (grid.ravel() for grid in np.meshgrid(np.arange(201), np.arange(201), indexing="ij"))
-    high, low = jax.jit(tuple_hash)(x.astype(np.int32), y.astype(np.int32))
+    high, low = rware_jit.jit(tuple_hash)(x.astype(np.int32), y.astype(np.int32))
     got = (np.asarray(high, np.uint64) << np.uint64(32)) | np.asarray(low, np.uint64)
     expected = np.array([hash((int(a), int(b))) & (2**64 - 1) for a, b in zip(x, y)], np.uint64)
     assert got.dtype == np.uint64 and np.array_equal(got, expected)
@@ -79,7 +83,7 @@ def filled(keys: list) -> set:
 
 def test_set_positions_follow_a_set_filled_key_by_key():
     keys, high, low, counts = random_sets(seed=0, cases=1200)
-    positions = np.asarray(jax.jit(jax.vmap(set_positions))(high, low, counts))
+    positions = np.asarray(rware_jit.jit(jax.vmap(set_positions))(high, low, counts))
     built = [filled(elements) for elements in keys]
     assert_positions(positions, keys, built)
 
@@ -94,7 +98,7 @@ def test_set_positions_follow_a_set_filled_key_by_key():
 
 def test_copy_positions_follow_a_set_built_from_another_set():
     keys, high, low, counts = random_sets(seed=1, cases=1200)
-    positions = np.asarray(jax.jit(jax.vmap(copy_positions))(high, low, counts))
+    positions = np.asarray(rware_jit.jit(jax.vmap(copy_positions))(high, low, counts))
     inner = [filled(elements) for elements in keys]
     built = [set(iter(the_set)) for the_set in inner]  # as show_nodes: set() of a generator over the BFS set
     assert_positions(positions, keys, built)
@@ -124,7 +128,7 @@ def test_several_sets_at_once_are_each_their_own_set():
                 expected[kind, case, members] = [list(built).index(key) for key in keys[first:first + size]]
             first += size
     for kind, function in enumerate((set_positions, copy_positions)):
-        got = jax.jit(jax.vmap(function))(high, low, count, turn, group)
+        got = rware_jit.jit(jax.vmap(function))(high, low, count, turn, group)
         assert np.array_equal(np.asarray(got), expected[kind]), kind
 
 
@@ -168,12 +172,15 @@ def compiled(width: int):
     """``component_rank`` over a batch of graphs, ``needed`` optional."""
     def rank(start, target, needed=None):
         return component_rank(start, target, width, needed)
-    return jax.jit(jax.vmap(rank))
+    return rware_jit.jit(jax.vmap(rank))
 
 
-@pytest.mark.parametrize("agents, width, height", [  # each count its own program: a few, and the largest
-    (4, 5, 4), (8, 7, 6), (19, 16, 14),                    # (test_rware_conflicts.py runs 5 to 19 end to end)
-])
+RANK_GRIDS = {4: (5, 4), 8: (7, 6), 19: (16, 14)}
+"""Agents: the grid's (width, height). Each count its own program: a few, and the largest (test_rware_conflicts.py
+runs 5 to 19 end to end); test_the_largest_set_order_components reuses the programs of 8 and 19."""
+
+
+@pytest.mark.parametrize("agents, width, height", [(agents, *grid) for agents, grid in RANK_GRIDS.items()])
 def test_component_rank_is_networkx_component_copy_order(agents, width, height):
     rng = np.random.default_rng(agents)
     cases = [scenario(rng, agents, width, height) for _ in range(300)]
@@ -210,11 +217,11 @@ def test_components_without_needed_agents_keep_insertion_order():
 @pytest.mark.parametrize("agents", [8, 19])
 def test_the_largest_set_order_components(agents):
     """A tree of ``k`` agents into one empty cell, every other agent into a fresh cell: the most cells in set order."""
-    width, height, longest = 20, 20, longest_set_order_component(agents)
+    (width, height), longest = RANK_GRIDS[agents], longest_set_order_component(agents)
     tree = next(k for k in range(1, agents + 1) if min(k + 1, 2 * (agents - k) - 1) == longest)
     rng = np.random.default_rng(agents)
     cases = []
-    for _ in range(100):
+    for _ in range(300):  # the rank test's batch: its program
         cells = rng.choice(width * height, 2 * agents, replace=False).astype(np.int32)
         starts, targets, members = cells[:agents], cells[agents:].copy(), rng.permutation(agents)[:tree]
         for place, agent in enumerate(members[:-1]):  # each joins a later member: one tree, sink at the last
@@ -235,7 +242,7 @@ def test_probe_table_is_pythons_hash_and_first_precedes_in_triple_is_pythons_ord
     assert table[7 * width + 3, 0] == hash((3, 7)) & 7  # row y W + x holds (x, y)'s home slot first
     cells = np.random.default_rng(3).integers(0, height * width, size=(6000, 3))
     cells = cells[[len(set(row)) == 3 for row in cells]]
-    ours = np.asarray(jax.jit(first_precedes_in_triple)(*(jnp.asarray(table)[cells[:, k]] for k in range(3))))
+    ours = np.asarray(rware_jit.jit(first_precedes_in_triple)(*(jnp.asarray(table)[cells[:, k]] for k in range(3))))
     expected = []
     for row in cells:
         first, middle, last = ((int(c) % width, int(c) // width) for c in row)
@@ -255,7 +262,7 @@ def test_triple_table_is_pythons_order_for_every_cell_and_pair_of_neighbours(hei
     cell wide and one high (where a flat difference of 1 is a row, not a column), every entry."""
     table = triple_table(height, width)
     assert table.shape == (height * width, 4, 4)
-    checked = []
+    checked, directions = [], []  # directions: (cell, centre, expected direction), checked in one call below
     for middle_cell in range(height * width):
         x, y = middle_cell % width, middle_cell // width
         for a, (ax, ay) in enumerate(NEIGHBOURS):
@@ -269,9 +276,12 @@ def test_triple_table_is_pythons_order_for_every_cell_and_pair_of_neighbours(hei
                 copied = list(set(iter(filled)))
                 assert table[middle_cell, a, b] == (copied.index(first) < copied.index(last)), (x, y, a, b)
                 for cell, direction in ((first, a), (last, b)):
-                    flat = jnp.int32(cell[1] * width + cell[0])
-                    assert int(triple_direction(flat, jnp.int32(middle_cell), width)) == direction, (cell, x, y)
+                    directions.append((cell[1] * width + cell[0], middle_cell, direction))
                 checked.append(bool(table[middle_cell, a, b]))
+    cells, centres, expected = np.array(directions, np.int32).T
+    got = np.asarray(rware_jit.jit(triple_direction, static_argnums=2)(cells, centres, width))
+    for cell, centre, direction, ours in zip(cells, centres, expected, got):
+        assert ours == direction, (cell % width, cell // width, centre % width, centre // width)
     assert len(checked) >= 2 * (max(height, width) - 2)
     if min(height, width) > 1:
         assert 0.2 < np.mean(checked) < 0.8  # both outcomes occur
