@@ -1,7 +1,9 @@
 """SAC and TD3: settings refused before compiling, the squashed Gaussian's density, the replay of a
 truncation, exact repeats, and learned behaviour on a warehouse small enough for CI.
 
-The learning runs share one compiled program per algorithm (module fixtures, three seeds vmapped).
+The learning runs share one compiled program per algorithm (module fixtures, three seeds vmapped). SAC's
+(``sac_run``) serves four tests: its learning, a second run's bits, and its replay buffer (truncations, and the
+warm-up's independent uniform actions for the correlated-exploration test).
 """
 
 from __future__ import annotations
@@ -45,10 +47,12 @@ def corridor():
 
 
 def train_and_evaluate(algo, env, params):
-    runners, metrics = jax.jit(make_train_seeds(algo))(training.seed_keys(SEEDS))
+    """The seeds' runners and metrics, their evaluation, and the compiled training (to run it again)."""
+    train = jax.jit(make_train_seeds(algo))
+    runners, metrics = train(training.seed_keys(SEEDS))
     actors = jax.vmap(algo.network_params)(runners)
     evaluation = jax.jit(jax.vmap(lambda p: seed_summary(evaluate_policy(algo.greedy_action, p, env, params))))(actors)
-    return runners, metrics, jax.tree.map(np.asarray, evaluation)
+    return runners, metrics, jax.tree.map(np.asarray, evaluation), train
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +63,7 @@ def sac_run(corridor):
 
 
 def test_sac_learns_to_deliver_without_collisions(sac_run):
-    _, _, metrics, evaluation = sac_run
+    _, _, metrics, evaluation, _ = sac_run
     print({k: v.tolist() for k, v in evaluation.items()})
     assert evaluation["eval_solved"].tolist() == [1.0] * len(SEEDS)  # measured: 3/3, 9 steps each
     assert np.all(evaluation["eval_mean_steps"] <= 12)
@@ -76,14 +80,16 @@ def test_sac_learns_to_deliver_without_collisions(sac_run):
 def test_td3_learns_to_deliver(corridor):
     env, params = corridor
     algo = TD3(tiny(TD3Config), env, params)
-    _, _, evaluation = train_and_evaluate(algo, env, params)
+    _, _, evaluation, _ = train_and_evaluate(algo, env, params)
     print({k: v.tolist() for k, v in evaluation.items()})
     assert (evaluation["eval_success_rate"] == 1.0).sum() >= 2  # measured: 2/3 seeds solve it in 8,000 steps
 
 
-def test_same_seed_same_bits_and_seeds_differ(sac_run, corridor):
-    algo, runners, _, _ = sac_run
-    again, _ = jax.jit(make_train_seeds(algo))(training.seed_keys(SEEDS))
+def test_same_seed_same_bits_and_seeds_differ(sac_run):
+    """The same seeds run again (``sac_run``'s compiled training: a separate trace of the same updates is
+    compared bit for bit in test_sac_chunks_and_resume_give_the_same_bits) give the same bits; seeds differ."""
+    _, runners, _, _, train = sac_run
+    again, _ = train(training.seed_keys(SEEDS))
     for a, b in zip(jax.tree_util.tree_leaves(runners), jax.tree_util.tree_leaves(again)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     kernels = np.asarray(runners.actor["params"]["Dense_0"]["kernel"])
@@ -94,7 +100,7 @@ def test_truncation_is_stored_with_the_reached_observation(sac_run):
     """Episodes of the corridor end by truncation at 60 steps early in training: the stored ``next_obs``
     of such a transition is where the robot got to (one step from ``obs``), not the next episode's start,
     and ``terminated`` is False there, so the target bootstraps from it."""
-    algo, runners, _, _ = sac_run
+    algo, runners, _, _, _ = sac_run
     data = jax.tree.map(lambda x: np.asarray(x[0]), runners.buffer.data)
     env = algo.env
     step = float(algo.env_params.v_max * algo.env_params.dt) * 1.25  # a gain may stretch a step
@@ -120,15 +126,21 @@ def test_squashed_gaussian_density_counts_tanh_and_the_box(corridor):
 
     wide = WideBox(params, num_rays=8)
     algo = SAC(tiny(SACConfig), wide, params)
-    actor, _ = algo.init_networks(jax.random.key(3))
+
+    @jax.jit  # one program: eagerly the networks' init and the density compile op by op
+    def draw(obs):
+        actor, _ = algo.init_networks(jax.random.key(3))
+        unit, log_prob = algo.sample_unit(actor, obs, jax.random.key(4))
+        return unit, log_prob, algo.gaussian(actor, obs), algo.to_env(unit)
+
     obs = jnp.linspace(-1, 1, 5 * 19, dtype=jnp.float32).reshape(5, 19)
-    unit, log_prob = algo.sample_unit(actor, obs, jax.random.key(4))
-    mean, log_std = (np.asarray(x, np.float64) for x in algo.gaussian(actor, obs))
+    unit, log_prob, gaussian_params, in_box = draw(obs)
+    mean, log_std = (np.asarray(x, np.float64) for x in gaussian_params)
     u = np.arctanh(np.clip(np.asarray(unit, np.float64), -1 + 1e-7, 1 - 1e-7))
     gaussian = -0.5 * ((u - mean) / np.exp(log_std)) ** 2 - log_std - 0.5 * math.log(2 * math.pi)
     expected = (gaussian - np.log(1 - np.tanh(u) ** 2)).sum(axis=1) - 2 * math.log(2.0)
     np.testing.assert_allclose(np.asarray(log_prob), expected, atol=2e-3)
-    np.testing.assert_allclose(np.asarray(algo.to_env(unit)), 2 * np.asarray(unit), rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(in_box), 2 * np.asarray(unit), rtol=1e-6)
     assert algo.target_entropy == -2.0
     assert SAC(dataclasses.replace(tiny(SACConfig), target_entropy=-5.0), wide, params).target_entropy == -5.0
 
@@ -171,19 +183,34 @@ def test_flops_count_both_phases(corridor):
     assert 0 < td3.gradient_step_flops() < sac.gradient_step_flops()
 
 
-@pytest.mark.parametrize("rho", [0.0, 0.9])
-def test_correlated_exploration_keeps_its_direction(corridor, rho):
+def lag1_correlation(actions: np.ndarray) -> float:
+    """The mean lag-1 autocorrelation of ``(steps, envs, A)`` actions over every env and dimension."""
+    _, envs, dims = actions.shape
+    return float(np.mean([np.corrcoef(actions[:-1, e, d], actions[1:, e, d])[0, 1]
+                          for e in range(envs) for d in range(dims)]))
+
+
+def test_correlated_exploration_keeps_its_direction(corridor, sac_run):
     """Warm-up actions: with ``noise_correlation`` 0.9 each env's action follows the last one (lag-1
-    correlation near 0.9, still spread over the whole box); with 0 they are independent."""
+    correlation near 0.9, still spread over the whole box); with 0 they are independent (read from
+    ``sac_run``'s buffer: its first 62 vector steps, before learning starts at 500 transitions, every seed)."""
     env, params = corridor
-    algo = SAC(tiny(SACConfig, noise_correlation=rho), env, params)
+    algo = SAC(tiny(SACConfig, noise_correlation=0.9), env, params)
     # The collection alone (the gradient step is not compiled): 200 vector steps, all before learning starts.
-    collect = jax.jit(lambda runner: jax.lax.scan(algo._env_step, runner, jnp.zeros(200, jnp.int32))[0])
-    runner = collect(jax.jit(algo.init)(jax.random.key(0)))
+    collect = jax.jit(lambda key: jax.lax.scan(algo._env_step, algo.init(key), jnp.zeros(200, jnp.int32))[0])
+    runner = collect(jax.random.key(0))
     actions = np.asarray(runner.buffer.data.action[: 8 * 200]).reshape(200, 8, 2)
-    lag1 = np.mean([np.corrcoef(actions[:-1, e, d], actions[1:, e, d])[0, 1] for e in range(8) for d in range(2)])
-    assert (lag1 > 0.75) if rho else (abs(lag1) < 0.15), lag1
+    lag1 = lag1_correlation(actions)
+    assert lag1 > 0.75, lag1
     assert actions.min() < -0.9 and actions.max() > 0.9
+    # rho = 0: independent uniform actions.
+    independent_algo, independent_runners, _, _, _ = sac_run
+    assert independent_algo.config.noise_correlation == 0.0 and independent_algo.config.learning_starts == 500
+    warm_up = np.asarray(independent_runners.buffer.data.action[:, : 8 * 62]).reshape(len(SEEDS), 62, 8, 2)
+    lag1 = [lag1_correlation(seed_actions) for seed_actions in warm_up]
+    print("rho 0.9:", lag1_correlation(actions), "rho 0, per seed:", lag1)
+    assert max(abs(x) for x in lag1) < 0.15, lag1
+    assert warm_up.min() < -0.9 and warm_up.max() > 0.9
 
 
 def test_ppo_gaussian_policy_learns_the_corridor(corridor):
@@ -203,9 +230,15 @@ def test_ppo_gaussian_policy_learns_the_corridor(corridor):
         lambda p: seed_summary(evaluate_policy(algo.greedy_action, p, env, params))))(actors))
     print({k: v.tolist() for k, v in evaluation.items()})
     assert (evaluation["eval_solved"] == 1.0).sum() >= 2
-    mean = algo.forward(jax.tree.map(lambda x: x[0], actors), jnp.zeros((3, algo.num_features)))
-    log_prob = algo.gaussian_log_prob(jax.tree.map(lambda x: x[0], actors), mean, mean + 1.0)
-    std = np.exp(np.asarray(actors["log_std"][0], np.float64))
+    first = jax.tree.map(lambda x: np.asarray(x)[0], actors)
+
+    @jax.jit  # one program (eagerly each operation compiles on its own)
+    def log_prob_one_std_away(actor):
+        mean = algo.forward(actor, jnp.zeros((3, algo.num_features)))
+        return algo.gaussian_log_prob(actor, mean, mean + 1.0)
+
+    log_prob = log_prob_one_std_away(first)
+    std = np.exp(np.asarray(actors["log_std"], np.float64)[0])
     expected = (-0.5 / std**2 - np.log(std) - 0.5 * math.log(2 * math.pi)).sum()
     np.testing.assert_allclose(np.asarray(log_prob), expected, rtol=1e-5)
 
@@ -226,7 +259,8 @@ def test_sac_chunks_and_resume_give_the_same_bits(corridor, tmp_path):
             np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(leaves_a, leaves_b))
 
     in_pieces = trainer(8)
-    whole, pieces = training.run(trainer(24)), training.run(in_pieces)
+    start = in_pieces.init()  # one init program for both trainers (each would compile its own)
+    whole, pieces = training.run(trainer(24), runners=start), training.run(in_pieces, runners=start)
     assert whole.updates_done == pieces.updates_done == 24 and same(whole.runners, pieces.runners)
     meta = {"algo": "sac", "config": {"note": "test"}}
     first = training.run(in_pieces, tmp_path, metadata=meta, stop_after=8)

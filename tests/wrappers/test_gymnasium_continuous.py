@@ -1,5 +1,9 @@
 """The continuous warehouse through Gymnasium: the checker passes, the numbers are the JAX
-environment's, bad actions fail clearly, and Stable-Baselines3's SAC trains on it."""
+environment's, bad actions fail clearly, and Stable-Baselines3's SAC trains on it.
+
+The adapter compiles its reset and step once per environment and params: the tests share two of them, the 8x8 map
+as SAC and TD3 train on it (``TRAINING_8X8``) and the dynamic 12x12 map (``DYNAMIC_12X12``), both randomized.
+"""
 
 from __future__ import annotations
 
@@ -16,20 +20,22 @@ from wrl_jax.wrappers.gymnasium_continuous import ContinuousGymEnv
 CASES = [("wrl_jax/Continuous-Warehouse-8x8-v0", {"shaping": "geodesic", "observe_target": True, "observe_route": True}),
          ("wrl_jax/Continuous-Warehouse-12x12-Dynamic-v0", {})]
 """The 8x8 map as SAC and TD3 train on it (the target and the route after the contract's values), the dynamic one plain."""
+TRAINING_8X8 = {"randomize": True, **CASES[0][1]}
+DYNAMIC_12X12 = {"randomize": True}
 
 
 @pytest.mark.parametrize("env_id, kwargs", CASES)
 def test_gymnasium_env_checker(env_id, kwargs):
     from gymnasium.utils.env_checker import check_env
 
-    env = gym.make(env_id, randomize=True, **kwargs).unwrapped
+    env = gym.make(env_id, randomize=True, **kwargs).unwrapped  # the first case is TRAINING_8X8
     check_env(env, skip_render_check=True)
     assert env.action_space == gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
     assert env.observation_space.shape == (11 + 32 + (8 if kwargs else 0),)
 
 
 def test_adapter_is_the_jax_transition_step_by_step():
-    env = ContinuousGymEnv("Continuous-Warehouse-12x12-Dynamic-v0", randomize=True)
+    env = ContinuousGymEnv("Continuous-Warehouse-12x12-Dynamic-v0", **DYNAMIC_12X12)
     jax_env, params = env.jax_env, env.params
     obs, _ = env.reset(seed=7)
     key, reset_key = jax.random.split(jax.random.key(7))
@@ -50,14 +56,14 @@ def test_adapter_is_the_jax_transition_step_by_step():
 
 
 def test_seeds_repeat_and_differ():
-    env = ContinuousGymEnv("Continuous-Warehouse-12x12-Dynamic-v0", randomize=True)
+    env = ContinuousGymEnv("Continuous-Warehouse-12x12-Dynamic-v0", **DYNAMIC_12X12)
     first = [env.reset(seed=s)[0] for s in (1, 1, 2)]
     np.testing.assert_array_equal(first[0], first[1])
     assert not np.array_equal(first[0], first[2])
 
 
 def test_bad_actions_and_names_fail_clearly():
-    env = ContinuousGymEnv("Continuous-Warehouse-8x8-v0")
+    env = ContinuousGymEnv("Continuous-Warehouse-8x8-v0", **TRAINING_8X8)
     with pytest.raises(RuntimeError, match="reset"):
         env.step(np.zeros(2, np.float32))
     env.reset(seed=0)
@@ -76,7 +82,7 @@ def test_stable_baselines3_sac_trains_on_it(tmp_path, monkeypatch):
     import torch
 
     torch.set_num_threads(1)  # the test workers already use the cores
-    env = gym.make("wrl_jax/Continuous-Warehouse-8x8-v0")
+    env = gym.make("wrl_jax/Continuous-Warehouse-8x8-v0", **TRAINING_8X8)
     model = sb3.SAC("MlpPolicy", env, learning_starts=50, batch_size=32, policy_kwargs={"net_arch": [32, 32]},
                     seed=0, verbose=0)
     model.set_logger(sb3.common.logger.configure(str(tmp_path), []))  # else a log folder in the system temp dir
@@ -115,7 +121,8 @@ def test_rgb_array_rendering_draws_the_jax_state():
 
     from wrl_jax.envs.continuous.render import COLORS, lidar_from_obs, render_frame, to_pixel
 
-    env = gym.make("wrl_jax/Continuous-Warehouse-12x12-Dynamic-v0", render_mode="rgb_array", cell_size=8).unwrapped
+    env = gym.make("wrl_jax/Continuous-Warehouse-12x12-Dynamic-v0", render_mode="rgb_array", cell_size=8,
+                   **DYNAMIC_12X12).unwrapped
     assert env.metadata["render_modes"] == ["rgb_array"] and env.render_mode == "rgb_array"
     with pytest.raises(RuntimeError, match="reset"):
         env.render()
@@ -125,7 +132,10 @@ def test_rgb_array_rendering_draws_the_jax_state():
         env_render_passive_checker(env)
     frame = env.render()
     assert frame.shape == (96, 96, 3) and frame.dtype == np.uint8
-    expected = render_frame(env._state, env.params, lidar_from_obs(jax.numpy.asarray(obs), env.params, env.jax_env.num_rays), 8)
+    # The test's own drawing, jitted (eagerly it compiles op by op).
+    expected = jax.jit(lambda state, obs: render_frame(state, env.params, lidar_from_obs(obs, env.params,
+                                                                                         env.jax_env.num_rays), 8))(
+        env._state, jax.numpy.asarray(obs))
     np.testing.assert_array_equal(frame, np.asarray(expected))
     assert tuple(frame[to_pixel(env._state.pos, 8)]) == COLORS["robot"]
     env.step(np.array([1.0, 0.5], np.float32))

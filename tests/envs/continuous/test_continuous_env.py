@@ -1,7 +1,13 @@
 """The JAX continuous warehouse's own contract: clear errors before compiling, the gymnax interface,
-the same bits from the same key, and moving obstacles that really move."""
+the same bits from the same key, and moving obstacles that really move.
+
+The 12x12 map with 4 obstacles runs one compiled program (``drive``: a reset and 50 steps of one action, the
+environment without its default params a static argument), with and without randomization.
+"""
 
 from __future__ import annotations
+
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -15,6 +21,19 @@ from wrl_jax.envs.warehouse.maps import WAREHOUSE_8X8, WAREHOUSE_12X12
 @pytest.fixture(scope="module")
 def dynamic():
     return make_continuous(WAREHOUSE_12X12, num_obstacles=4)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def drive(env, params, key, action):
+    """A reset and 50 steps of ``action``: the first observation and state, then each step's observation, reward
+    and obstacle positions. Pass ``env.without_default_params()``: one program for every params of the map."""
+    obs, state = env.reset(key, params)
+
+    def one(state, k):
+        obs, state, reward, *_ = env.step(k, state, action, params)
+        return state, (obs, reward, state.obstacle_pos)
+
+    return obs, state, jax.lax.scan(one, state, jax.random.split(key, 50))[1]
 
 
 def test_the_study_maps_take_the_contract_limits_and_other_layouts_name_theirs():
@@ -40,7 +59,7 @@ def test_bad_settings_are_refused_with_the_setting_named(overrides, message):
 
 def test_actions_of_the_wrong_shape_or_kind_are_refused(dynamic):
     env, params = dynamic
-    _, state = jax.jit(env.reset)(jax.random.key(0), params)  # jitted: eagerly it compiles op by op
+    _, state, _ = drive(env.without_default_params(), params, jax.random.key(0), jnp.zeros(2))  # the shared program
     with pytest.raises(ValueError, match=r"shape \(2,\)"):
         env.step(jax.random.key(1), state, jnp.zeros(3), params)
     with pytest.raises(ValueError, match="two floats"):
@@ -50,18 +69,9 @@ def test_actions_of_the_wrong_shape_or_kind_are_refused(dynamic):
 
 def test_same_key_same_bits_other_keys_differ_and_obstacles_move(dynamic):
     env, params = dynamic
-
-    @jax.jit
-    def run(key):
-        obs, state = env.reset(key, params)
-
-        def one(state, k):
-            obs, state, reward, *_ = env.step(k, state, jnp.array([0.6, 0.3]), params)
-            return state, (obs, reward, state.obstacle_pos)
-
-        return jax.lax.scan(one, state, jax.random.split(key, 50))[1]
-
-    first, again, other = run(jax.random.key(3)), run(jax.random.key(3)), run(jax.random.key(4))
+    action = jnp.array([0.6, 0.3])
+    first, again, other = (drive(env.without_default_params(), params, jax.random.key(k), action)[2]
+                           for k in (3, 3, 4))
     assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(first), jax.tree.leaves(again)))
     assert not np.array_equal(first[2], other[2])
     travelled = np.abs(np.diff(first[2], axis=0)).sum()
@@ -89,6 +99,7 @@ def test_the_lidar_reads_closed_squares_at_corners_and_along_grid_lines():
     (Only angle 0 runs exactly along a line in float32: cos(pi/2) and sin(pi) are not 0 there.)"""
     from wrl_jax.envs.continuous.geometry import ray_grid
 
+    ray_grid = jax.jit(ray_grid)  # one program for the four rays (eagerly each call compiles its scan)
     shelves = jnp.zeros((8, 8), bool).at[2, 3].set(True)  # the square x in [3, 4], y in [2, 3]
     along_bottom_edge = ray_grid(jnp.array([0.5, 3.0]), jnp.array([0.0]), shelves)  # y = 3: the shelf's top edge
     along_top_edge = ray_grid(jnp.array([0.5, 2.0]), jnp.array([0.0]), shelves)
@@ -103,17 +114,6 @@ def test_randomized_observations_lie_in_the_space():
     """Randomized gains and noise take the applied command past 1: the space says so, every other value stays in [-1, 1]."""
     env, params = make_continuous(WAREHOUSE_12X12, num_obstacles=4, randomize=True)
     space = env.observation_space(params)
-
-    @jax.jit
-    def run(key):
-        obs, state = env.reset(key, params)
-
-        def one(state, k):
-            obs, state, *_ = env.step(k, state, jnp.array([1.0, 1.0]), params)
-            return state, obs
-
-        return obs, jax.lax.scan(one, state, jax.random.split(key, 40))[1]
-
-    first, observations = run(jax.random.key(5))
+    first, _, (observations, _, _) = drive(env.without_default_params(), params, jax.random.key(5), jnp.ones(2))
     assert bool(space.contains(first)) and bool(jax.vmap(space.contains)(observations).all())
     assert float(jnp.abs(observations[:, 4:6]).max()) > 1.0  # the gains and noise really pass 1

@@ -84,6 +84,11 @@ def record(env, params, key, steps):
     return jax.lax.scan(one, state, jax.random.split(key, steps))[1]
 
 
+RECORD = jax.jit(record, static_argnums=(0, 3))
+"""One jitted :func:`record` for the module: with the environment stripped of its default params (they are passed),
+the two 12x12 cases (limits and randomization are params) run one compiled program."""
+
+
 def reference_params(env, params) -> rtypes.ContinuousParams:
     p = {name: np.asarray(getattr(params, name)).item() for name in (
         "dt", "v_max", "w_max", "robot_radius", "reach_radius", "lidar_range", "step_penalty", "collision_penalty",
@@ -213,7 +218,8 @@ def test_transitions_match_the_reference(case):
     env, params = make_continuous(text, **settings)
     layout = rtypes.ContinuousLayout.from_text(text)
     rp = reference_params(env, params)
-    rec = jax.jit(record, static_argnums=(0, 3))(env, params, jax.random.key(sorted(CASES).index(case)), STEPS)
+    key = jax.random.key(sorted(CASES).index(case))
+    rec = RECORD(env.without_default_params(), params, key, STEPS)  # one program per map size and obstacle count
     rec = jax.tree.map(np.asarray, rec)
     tally = Tally()
     compare(env, params, layout, rp, rec, tally)

@@ -225,15 +225,19 @@ class _Algo:
 
 def test_the_family_hook_evaluates_pool_layouts_and_heldout_sets(env_params, monkeypatch):
     env, params = env_params
-    result = jax.jit(lambda p: evaluation.evaluate_policy(_Algo.greedy_action, p, env, params))(jnp.float32(0.5))
+
+    def evaluate(p):  # the evaluation and its scalars in one program
+        result = evaluation.evaluate_policy(_Algo.greedy_action, p, env, params)
+        return result, evaluation.seed_summary(result)
+
+    result, scalars = jax.device_get(jax.jit(evaluate)(jnp.float32(0.5)))  # NumPy: eagerly each op compiles
     assert result.valid.shape == (16, evaluation.OBSTACLE_ROUNDS, 8)  # 16 pool slots x rounds x item rows
     np.testing.assert_array_equal(np.asarray(result.valid[:, 0]),
-                                  np.arange(8)[None, :] < np.asarray(params.pool.num_items[:16, None]))
+                                  np.arange(8)[None, :] < np.asarray(params.pool.num_items)[:16, None])
     summary = evaluation.summarize(jax.tree.map(lambda x: x[None], result))
     assert summary["layouts"] == 16 and summary["rounds"] == evaluation.OBSTACLE_ROUNDS
-    assert summary["episodes"] == int(np.asarray(params.pool.num_items[:16]).sum()) * evaluation.OBSTACLE_ROUNDS
+    assert summary["episodes"] == int(np.asarray(params.pool.num_items)[:16].sum()) * evaluation.OBSTACLE_ROUNDS
     assert "16 layouts" in evaluation.format_report(summary, "test")
-    scalars = evaluation.seed_summary(result)
     assert 0.0 <= float(scalars["eval_success_rate"]) <= 1.0 and float(scalars["eval_collisions"]) > 0
     # The final report: held-out and out-of-distribution layouts, two seeds (sizes shrunk for the test).
     # The generated out-of-distribution sets are the grid family's (tested there); the study maps stand for them.

@@ -1,5 +1,9 @@
 """Rendering the continuous warehouse: every element where the state puts it, rays ending at their
-distance, vmapped frames equal to single ones, recorded episodes and their GIFs."""
+distance, vmapped frames equal to single ones, recorded episodes and their GIFs.
+
+The recorded episodes share one compiled episode (``open5``: 60 steps); single frames go through one jitted
+``render`` (the cell size static).
+"""
 
 from __future__ import annotations
 
@@ -196,8 +200,8 @@ def test_lidar_from_obs_reads_the_rays_alone_when_the_target_follows_them():
     """With ``observe_target`` the target's 5 values follow the rays: they are not drawn as rays."""
     plain, params = make_continuous(OPEN_5X5, max_steps=60, num_rays=8)
     target, _ = make_continuous(OPEN_5X5, max_steps=60, num_rays=8, observe_target=True)
-    obs, _ = plain.reset(jax.random.key(1), params)
-    seen, _ = target.reset(jax.random.key(1), params)
+    # Both resets in one program (eagerly they compile op by op).
+    (obs, _), (seen, _) = jax.jit(lambda k: (plain.reset(k, params), target.reset(k, params)))(jax.random.key(1))
     assert seen.shape == (11 + 8 + 5,)
     rays = lidar_from_obs(seen, params, target.num_rays)
     np.testing.assert_array_equal(rays, lidar_from_obs(obs, params, plain.num_rays))
@@ -242,10 +246,14 @@ def test_record_episode_delivers_and_writes_a_gif(open5, tmp_path):
 
 
 def test_record_episode_cap_item_draw_and_checks(open5):
+    """``max_steps`` caps the recording below the episode's limit. The cap is the limit of ``open5`` (60 steps), so
+    the recording is the delivering test's compiled episode; here the limit is 100 and the robot ten times slower
+    (both params, not program settings), so the episode runs on past the cap without delivering."""
     env, params, policy = open5
-    short = record_episode(env, params, policy, jax.random.key(0), item_index=0, max_steps=5, cell_size=CELL)
-    assert short.length == 5 and not short.delivered and short.frames.shape[0] == 6
-    drawn = record_episode(env, params, policy, jax.random.key(3), max_steps=5, cell_size=CELL)
+    slow = params.replace(max_steps=jnp.int32(100), v_max=params.v_max / 10)
+    short = record_episode(env, slow, policy, jax.random.key(0), item_index=0, max_steps=60, cell_size=CELL)
+    assert short.length == 60 and not short.delivered and short.frames.shape[0] == 61
+    drawn = record_episode(env, params, policy, jax.random.key(3), max_steps=60, cell_size=CELL)
     assert drawn.item_index == 0  # the layout has one item
     with pytest.raises(ValueError, match="out of range"):
         record_episode(env, params, policy, jax.random.key(0), item_index=1)

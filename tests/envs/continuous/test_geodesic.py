@@ -32,8 +32,10 @@ def test_fields_are_the_way_around_the_shelves_within_three_percent(study_12x12)
     to_item, to_goal = spath.item_legs(np.asarray(params.shelves), np.asarray(params.start), np.asarray(params.goal),
                                        np.asarray(params.items), clearance)
     items = int(params.num_items)
-    field_to_item = np.array([float(geodesic.read_field(shaped.fields[k], params.start)) for k in range(items)])
-    field_to_goal = np.array([float(geodesic.read_field(shaped.fields[-1], params.items[k])) for k in range(items)])
+    read, fields = jax.jit(geodesic.read_field), np.asarray(shaped.fields)  # eagerly: op by op compiles
+    points = np.asarray(params.items)
+    field_to_item = np.array([float(read(fields[k], params.start)) for k in range(items)])
+    field_to_goal = np.array([float(read(fields[-1], points[k])) for k in range(items)])
     # The exact any-angle length at the field's clearance: the lattice's 16 directions make it a little longer
     # (a little shorter where a route rounds a corner between lattice points).
     for lattice, exact in ((field_to_item, to_item), (field_to_goal, to_goal)):
@@ -89,7 +91,7 @@ def test_everything_but_the_reward_is_the_contracts_and_the_shaping_telescopes(s
     target = np.where(carrying[:, None], np.asarray(params.goal)[None], item)
     index = np.where(carrying, shaped_params.fields.shape[0] - 1,
                      np.argmin(np.abs(np.asarray(params.items)[None] - item[:, None]).sum(-1), axis=1))
-    read = jax.vmap(lambda k, p: geodesic.read_field(shaped_params.fields[k], p))
+    read = jax.jit(jax.vmap(lambda k, p: geodesic.read_field(shaped_params.fields[k], p)))  # eagerly: op by op
     around = np.asarray(read(index, before)) - np.asarray(read(index, after))
     manhattan = np.abs(before - target).sum(-1) - np.abs(after - target).sum(-1)
     expected = np.asarray(plain_trace[5]) + float(params.shaping_coef) * (around - manhattan)
@@ -107,14 +109,22 @@ def test_observe_target_appends_the_target_in_the_robots_frame():
     plain, params = make_named("8x8")
     seen, seen_params = make_named("8x8", observe_target=True)
     assert seen.obs_size == plain.obs_size + 5 and seen.observation_space().shape == (seen.obs_size,)
-    key = jax.random.key(0)
-    obs, state = jax.jit(seen.reset)(key, seen_params)  # jitted: eagerly they compile op by op
-    obs0, _ = jax.jit(plain.reset)(key, params)
-    np.testing.assert_array_equal(obs[: plain.obs_size], obs0)
     turn = jnp.array([0.0, 1.0])  # turn on the spot: the target's bearing rotates with the robot
-    step = jax.jit(seen.step)
+
+    @jax.jit  # both resets and the steps in one program (eagerly they compile op by op)
+    def run(key):
+        (obs, state), (obs0, _) = seen.reset(key, seen_params), plain.reset(key, params)
+
+        def one(state, t):
+            obs, state, *_ = seen.step(jax.random.key(t), state, turn, seen_params)
+            return state, (obs, state)
+
+        return obs, obs0, jax.lax.scan(one, state, jnp.arange(3))[1]
+
+    obs, obs0, (observations, states) = jax.device_get(run(jax.random.key(0)))
+    np.testing.assert_array_equal(obs[: plain.obs_size], obs0)
     for t in range(3):
-        obs, state, *_ = step(jax.random.key(t), state, turn, seen_params)
+        obs, state = observations[t], jax.tree.map(lambda x, t=t: x[t], states)
         target = np.asarray(state.item)  # not carrying: the item
         offset = target - np.asarray(state.pos)
         theta = float(state.theta)
@@ -134,31 +144,39 @@ def test_observe_route_points_down_the_field_in_the_robots_frame(study_12x12):
     assert routed.obs_size == plain.obs_size + geodesic.ROUTE_FEATURES
     high = np.asarray(routed.observation_space().high)
     assert routed.observation_space().shape == high.shape == (routed.obs_size,) and high[-1] == geodesic.ROUTE_LENGTH_CAP
-    obs, state = jax.jit(routed.reset)(jax.random.key(0), routed_params)
-    obs0, _ = jax.jit(plain.reset)(jax.random.key(0), params)
-    np.testing.assert_array_equal(obs[: plain.obs_size], obs0)
-    turn = jnp.array([0.3, 1.0])
-    step = jax.jit(routed.step)
-    for t in range(4):
-        obs, state, *_ = step(jax.random.key(t), state, turn, routed_params)
-        forward, left, length = np.asarray(obs[plain.obs_size:])
-        assert np.all(np.abs(np.asarray(obs)) <= high)
-        assert abs(np.hypot(forward, left) - 1) < 1e-5
-        field = routed_params.fields[int(np.argmin(np.abs(np.asarray(params.items) - np.asarray(state.item)).sum(-1)))]
-        theta = float(state.theta)
-        way = np.array([forward * np.cos(theta) - left * np.sin(theta), forward * np.sin(theta) + left * np.cos(theta)])
-        here = float(geodesic.read_field(field, state.pos))
-        np.testing.assert_allclose(length, here / 12, rtol=1e-5)
-        # 0.1 m along the way the field falls by nearly 0.1 m (the way is the steepest descent), and it rises the other way.
-        assert here - float(geodesic.read_field(field, state.pos + 0.1 * way)) > 0.09
-        assert float(geodesic.read_field(field, state.pos - 0.1 * way)) > here
     # With the target too (SAC's and TD3's training view): the target's 5 values first, then the route's 3.
     both, both_params = make_named("12x12", shaping="geodesic", observe_target=True, observe_route=True)
     target, target_params = make_named("12x12", observe_target=True)
-    obs_both, _ = jax.jit(both.reset)(jax.random.key(1), both_params)
-    obs_target, _ = jax.jit(target.reset)(jax.random.key(1), target_params)
-    obs_route, _ = jax.jit(routed.reset)(jax.random.key(1), routed_params)
-    np.testing.assert_array_equal(obs_both, np.concatenate([obs_target, obs_route[plain.obs_size:]]))
+    turn = jnp.array([0.3, 1.0])
+
+    @jax.jit  # every reset of the test and the steps in one program (eagerly they compile op by op)
+    def run(key):
+        obs, state = routed.reset(key, routed_params)
+
+        def one(state, t):
+            obs, state, *_ = routed.step(jax.random.key(t), state, turn, routed_params)
+            return state, (obs, state)
+
+        others = [env.reset(key, p)[0] for env, p in ((plain, params), (both, both_params), (target, target_params))]
+        return obs, others, jax.lax.scan(one, state, jnp.arange(4))[1]
+
+    obs, (obs0, obs_both, obs_target), (observations, states) = jax.device_get(run(jax.random.key(0)))
+    np.testing.assert_array_equal(obs[: plain.obs_size], obs0)
+    np.testing.assert_array_equal(obs_both, np.concatenate([obs_target, obs[plain.obs_size:]]))
+    read, fields = jax.jit(geodesic.read_field), np.asarray(routed_params.fields)  # eagerly: op by op compiles
+    for t in range(4):
+        obs, state = observations[t], jax.tree.map(lambda x, t=t: x[t], states)
+        forward, left, length = np.asarray(obs[plain.obs_size:])
+        assert np.all(np.abs(np.asarray(obs)) <= high)
+        assert abs(np.hypot(forward, left) - 1) < 1e-5
+        field = fields[int(np.argmin(np.abs(np.asarray(params.items) - np.asarray(state.item)).sum(-1)))]
+        theta = float(state.theta)
+        way = np.array([forward * np.cos(theta) - left * np.sin(theta), forward * np.sin(theta) + left * np.cos(theta)])
+        here = float(read(field, state.pos))
+        np.testing.assert_allclose(length, here / 12, rtol=1e-5)
+        # 0.1 m along the way the field falls by nearly 0.1 m (the way is the steepest descent), and it rises the other way.
+        assert here - float(read(field, state.pos + 0.1 * way)) > 0.09
+        assert float(read(field, state.pos - 0.1 * way)) > here
     with pytest.raises(ValueError, match="observe_route reads the geodesic shaping's distance fields"):
         make_named("12x12", observe_route=True)
     from wrl_jax.envs.continuous.procedural import make_continuous_procedural

@@ -247,9 +247,11 @@ def test_pursuit_waits_for_an_obstacle_ahead_only_and_then_steps_aside(dynamic):
 def test_a_step_away_from_a_touching_obstacle_is_never_refused():
     _, params = make_continuous(WAREHOUSE_12X12, num_obstacles=4)
     pos, obstacle = jnp.array([5.0, 5.0]), jnp.array([[5.6, 5.0]])
+    # Jitted: one program for the three motions (eagerly each operation compiles on its own).
+    check = jax.jit(lambda motion: in_the_way(pos, obstacle, motion, jnp.float32(0.2), jnp.float32(0.01),
+                                              jnp.bool_(True), params, CONFIG))
     for motion, refused in [((1.0, 0.0), True), ((-1.0, 0.0), False), ((0.0, 1.0), False)]:
-        got = in_the_way(pos, obstacle, jnp.array(motion), jnp.float32(0.2), jnp.float32(0.01), jnp.bool_(True),
-                         params, CONFIG)
+        got = check(jnp.array(motion))
         assert bool(got) == refused, motion
 
 
