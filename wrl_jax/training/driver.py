@@ -26,7 +26,8 @@ gives that seed's *convergence step*.
 Metric rows, the progress text and convergence are :mod:`~wrl_jax.training.log_rows`.
 
 Why one module of this length: :class:`Trainer` and :func:`run` are one loop
-that must stay bit-identical to ``make_train`` (tested), and read best side by side.
+that must stay bit-identical to ``make_train`` (tested for PPO; the off-policy learners' two programs
+fuse differently and agree to float rounding), and read best side by side.
 """
 
 from __future__ import annotations
