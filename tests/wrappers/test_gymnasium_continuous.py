@@ -144,3 +144,19 @@ def test_rgb_array_rendering_draws_the_jax_state():
         assert ContinuousGymEnv("Continuous-Warehouse-8x8-v0").render() is None  # no render_mode: nothing drawn
     with pytest.raises(ValueError, match="render_mode"):
         ContinuousGymEnv("Continuous-Warehouse-8x8-v0", render_mode="human")
+
+
+def test_environments_that_differ_in_params_share_the_compiled_programs():
+    """The adapter's programs take the environment without its default params as their static argument: another
+    ``max_steps`` or randomization (params) reuses the compiled reset and step instead of compiling its own."""
+    from wrl_jax.wrappers import gymnasium_continuous as adapter
+
+    def use(env):
+        env.reset(seed=0)
+        env.step(np.zeros(2, np.float32))
+        return adapter._reset._cache_size(), adapter._step._cache_size()
+
+    before = use(ContinuousGymEnv("Continuous-Warehouse-12x12-Dynamic-v0", **DYNAMIC_12X12))
+    other = ContinuousGymEnv("Continuous-Warehouse-12x12-Dynamic-v0", randomize=False, max_steps=50)
+    assert use(other) == before
+    assert int(other.params.max_steps) == 50  # the params really differ

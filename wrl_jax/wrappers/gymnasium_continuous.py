@@ -76,6 +76,9 @@ class ContinuousGymEnv(gym.Env):
             raise ValueError(f"{name} is not a continuous warehouse; ContinuousGymEnv takes one of "
                              f"{registry.registered_names('continuous')}")
         self.jax_env, self.params = registry.make(name, **overrides)
+        # The programs' static argument: equal for every layout and parameter value of this configuration, so
+        # environments that differ only in params (randomize, max_steps...) share the compiled reset and step.
+        self._static_env = self.jax_env.without_default_params()
         space = self.jax_env.observation_space(self.params)
         self.observation_space = spaces.Box(low=np.asarray(space.low, np.float32), high=np.asarray(space.high, np.float32),
                                             shape=space.shape, dtype=np.float32)
@@ -87,7 +90,7 @@ class ContinuousGymEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         start = seed if seed is not None else int(self.np_random.integers(0, 2**31 - 1))
-        self._key, obs, self._state = _reset(self.jax_env, jax.random.key(start), self.params)
+        self._key, obs, self._state = _reset(self._static_env, jax.random.key(start), self.params)
         self._obs = obs
         return np.asarray(obs, np.float32), {}
 
@@ -98,7 +101,7 @@ class ContinuousGymEnv(gym.Env):
         if action.shape != (2,) or not (np.issubdtype(action.dtype, np.floating) or np.issubdtype(action.dtype, np.integer)):
             raise ValueError(f"action must be 2 numbers (v, w) in [-1, 1], got shape {action.shape} dtype {action.dtype}")
         self._key, obs, self._state, reward, terminated, truncated, flags = _step(
-            self.jax_env, self._key, self._state, jnp.asarray(action, jnp.float32), self.params)
+            self._static_env, self._key, self._state, jnp.asarray(action, jnp.float32), self.params)
         self._obs = obs
         info = {name: bool(flag) for name, flag in zip(FLAGS, np.asarray(flags))}
         return np.asarray(obs, np.float32), float(reward), bool(terminated), bool(truncated), info
