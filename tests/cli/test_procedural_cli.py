@@ -34,13 +34,15 @@ def procedural_run(tmp_path_factory):
     spec = get_spec("ppo")
     config = dataclasses.replace(ppo_config.PROCEDURAL_MLP, hidden_sizes=(16,), num_envs=8, num_steps=16, num_minibatches=2,
                                  update_epochs=1, total_timesteps=256)
-    # The preset's observation (the previous action too): evaluate must rebuild it from env_overrides.
-    algo = build(spec, config, EnvOptions(env="Procedural-Warehouse-v0", **ppo_config.PROCEDURAL_ENV_DEFAULTS))
+    # The preset's observation (the previous action too): evaluate must rebuild it from env_overrides. A pool of
+    # 64 layouts (--pool-size 64): the pool program the procedural tests of other modules compile too.
+    overrides = {"pool_size": 64, **ppo_config.PROCEDURAL_ENV_DEFAULTS}
+    algo = build(spec, config, EnvOptions(env="Procedural-Warehouse-v0", **overrides))
     assert algo.env.observe_last_action and algo.env.observe_visited and algo.env.visit_levels == 3
     trainer = training.Trainer(algo, [3, 4], training.LoopConfig(progress=False))
     out = tmp_path_factory.mktemp("procedural-run")
     checkpoint.save(out, trainer.host_state(trainer.init()), {
-        "algo": "ppo", "env": "Procedural-Warehouse-v0", "env_overrides": dict(ppo_config.PROCEDURAL_ENV_DEFAULTS), "preset": "procedural",
+        "algo": "ppo", "env": "Procedural-Warehouse-v0", "env_overrides": overrides, "preset": "procedural",
         "config": config_to_dict(config), "seeds": [3, 4], "num_updates": trainer.num_updates,
         "steps_per_update": trainer.steps_per_update, "updates_done": 0, "env_steps_done": 0,
         "train_seconds": 0.0,

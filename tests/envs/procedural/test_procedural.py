@@ -1,11 +1,15 @@
 """Procedural warehouses (issue 13): generators, solvability, pools, MovingAI loader, environment.
 
 Compiled programs are shared through module fixtures (one 5,000-layout pool
-of the default mixture serves the generator, pool and environment tests), so
-the whole file stays well under a minute on two cores.
+of the default mixture serves the generator, pool and environment tests;
+``window_runs`` computes every radius of the window and ray tests in one
+program), and every small pool of the default generator has ``HELDOUT`` (64)
+slots, the periodic evaluation's count, so their generator compiles once.
 """
 
 from __future__ import annotations
+
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -38,6 +42,9 @@ from wrl_jax.envs.warehouse.layout import bfs_distances, optimal_route_lengths, 
 
 NUM_LAYOUTS = 5000
 CONFIG = gen.GeneratorConfig()
+HELDOUT = 64
+"""Slots of every small pool of the default generator here: the periodic evaluation's held-out layouts
+(``EVAL_LAYOUTS``), the final report's held-out set, the shaping test's pools; one pool program for them all."""
 
 
 def _slot(batch, index):
@@ -347,9 +354,10 @@ def test_dynamics_match_the_study_env_on_the_padded_12x12_map():
 
 def test_bfs_shaping_rewards_the_change_of_the_numpy_bfs_distance():
     """``shaping="bfs"``: SPEC.md's reward with ``d`` the shortest path (NumPy BFS), same dynamics, float32 bits."""
-    env, params = make_procedural(seed=3, pool_size=6, shaping="bfs")
-    plain_env, plain_params = make_procedural(seed=3, pool_size=6)
-    slots, items = np.meshgrid(np.arange(6), np.arange(2), indexing="ij")
+    # 64 slots: the pool size of the module's other small pools of the default generator (one pool program).
+    env, params = make_procedural(seed=3, pool_size=HELDOUT, shaping="bfs")
+    plain_env, plain_params = make_procedural(seed=3, pool_size=HELDOUT)
+    slots, items = np.meshgrid(np.arange(6), np.arange(2), indexing="ij")  # 6 slots, 2 items each
     slots, items = slots.reshape(-1), items.reshape(-1)
     # Toward the target by Manhattan on 70 % of the steps (so items get picked up and delivered), else random.
     actions = jax.random.randint(jax.random.key(4), (slots.size, 120), 0, 4)
@@ -367,12 +375,13 @@ def test_bfs_shaping_rewards_the_change_of_the_numpy_bfs_distance():
                 return next_state, (state.pos, next_state.pos, state.carrying, reward, info["collision"],
                                     info["picked_up"], info["delivered"])
             return jax.lax.scan(one, env.reset_to(slot, item, params)[1], (acts, coins))[1]
-        return jax.jit(jax.vmap(episode))(jnp.asarray(slots), jnp.asarray(items), actions, greedy)
+        return jax.vmap(episode)(jnp.asarray(slots), jnp.asarray(items), actions, greedy)
 
-    pos, next_pos, carrying, reward, collision, picked_up, delivered = map(np.asarray, run(env, params))
-    plain = run(plain_env, plain_params)
+    shaped, plain = jax.jit(lambda params, plain_params: (run(env, params), run(plain_env, plain_params)))(
+        params, plain_params)  # both envs in one program
+    pos, next_pos, carrying, reward, collision, picked_up, delivered = map(np.asarray, shaped)
     np.testing.assert_array_equal(next_pos, np.asarray(plain[1]))  # the dynamics do not change
-    layouts = params.pool.layouts
+    layouts = jax.tree.map(np.asarray, params.pool.layouts)
     differs = 0
     for e, (slot, item) in enumerate(zip(slots, items)):
         blocked = np.asarray(layouts.blocked[slot])
@@ -394,10 +403,10 @@ def test_bfs_shaping_rewards_the_change_of_the_numpy_bfs_distance():
     assert picked_up.any() and delivered.any() and carrying.any()
     assert differs > 0  # shelves made the two distances disagree on some steps, so the test tells them apart
     with pytest.raises(ValueError, match="shaping must be one of"):
-        make_procedural(pool_size=2, shaping="euclidean")
+        make_procedural(pool_size=HELDOUT, shaping="euclidean")
     with pytest.raises(ValueError, match="pool_refresh"):
-        make_procedural(pool_size=4, pool_refresh=2, shaping="bfs")
-    assert params.distances.shape == (6, 9, 16, 16) and plain_params.distances.shape == (6, 0, 16, 16)
+        make_procedural(pool_size=HELDOUT, pool_refresh=2, shaping="bfs")
+    assert params.distances.shape == (HELDOUT, 9, 16, 16) and plain_params.distances.shape == (HELDOUT, 0, 16, 16)
 
 
 def test_observation_is_the_fleet_robot_observation_with_off_grid_padding():
@@ -545,8 +554,61 @@ def test_visit_levels_count_the_laps_of_a_loop():
         make_from_layouts([layout], view_radius=1, observe_visited=True, visit_levels=0)
 
 
-@pytest.mark.parametrize("view_radius", [0, 1, 2, 3, 4, 11])
-def test_bit_mask_observation_is_robot_observations_bit_for_bit(view_radius):
+SMALL_FLOORS = {"pool_size": 64, "min_shape": (3, 3), "max_shape": (12, 12), "max_items": 1}
+"""Layouts from 3x3 to 12x12 in a 12x12 padding, one item: the window tests' pools (one pool program)."""
+WINDOW_RADII = (0, 1, 2, 3, 4, 11)
+RAY_RADII = (0, 2, 3)
+
+
+def _window_probe(env, params, view_radius, key):
+    """A random state of ``env`` anywhere on its real floor (shelves too), either target: its observation and
+    ``robot_observations``' gathers for it."""
+    key_reset, key_row, key_col, key_carry = jax.random.split(key, 4)
+    _, state = env.reset(key_reset, params)
+    pos = jnp.stack([jax.random.randint(key_row, (), 0, state.height),
+                     jax.random.randint(key_col, (), 0, state.width)])
+    state = state.replace(pos=pos, carrying=jax.random.bernoulli(key_carry))
+    target = jnp.where(state.carrying, state.goal, state.item_pos)
+    floor = params.pool.layouts.blocked[state.layout_index]
+    expected = robot_observations(floor, state.pos[None], target[None], state.carrying[None], view_radius, 12)
+    return env.observe(state), expected[0], env.blocked(state), floor, state.pos, state.height
+
+
+def _rays_probe(env, params, plain_env, key):
+    """A reset of the rays ``env`` and the robot moved anywhere on its floor, observed with and without rays."""
+    key_reset, key_row, key_col = jax.random.split(key, 3)
+    reset_obs, state = env.reset(key_reset, params)
+    pos = jnp.stack([jax.random.randint(key_row, (), 0, state.height),
+                     jax.random.randint(key_col, (), 0, state.width)])
+    moved = state.replace(pos=pos)
+    return reset_obs, env.observe(state), env.observe(moved), plain_env.observe(moved), moved.pos, moved.layout_index
+
+
+@pytest.fixture(scope="module")
+def window_runs():
+    """``{radius: (env, params, probe outputs)}`` of the bit-mask test, and ``{radius: (rays env, params, plain env,
+    outputs)}`` of the rays test: every radius of both tests in ONE jitted program (six programs apart cost twice
+    as much to compile); each test reads its radius."""
+    plain = {radius: make_procedural(**SMALL_FLOORS, view_radius=radius) for radius in WINDOW_RADII}
+    rays = {radius: make_procedural(**SMALL_FLOORS, view_radius=radius, observe_rays=True) for radius in RAY_RADII}
+
+    @jax.jit
+    def program(plain_params, rays_params, window_keys, ray_keys):
+        windows = {radius: jax.vmap(partial(_window_probe, plain[radius][0], plain_params[radius], radius))(
+            window_keys) for radius in WINDOW_RADII}
+        walks = {radius: jax.vmap(partial(_rays_probe, rays[radius][0], rays_params[radius], plain[radius][0]))(
+            ray_keys) for radius in RAY_RADII}
+        return windows, walks
+
+    windows, walks = program({radius: params for radius, (_, params) in plain.items()},
+                             {radius: params for radius, (_, params) in rays.items()},
+                             jax.random.split(jax.random.key(3), 4000), jax.random.split(jax.random.key(5), 500))
+    return ({radius: (*plain[radius], windows[radius]) for radius in WINDOW_RADII},
+            {radius: (*rays[radius], plain[radius][0], walks[radius]) for radius in RAY_RADII})
+
+
+@pytest.mark.parametrize("view_radius", WINDOW_RADII)
+def test_bit_mask_observation_is_robot_observations_bit_for_bit(window_runs, view_radius):
     """The packed-row windows equal the gathers of ``robot_observations`` on random states.
 
     Layouts from 3x3 to 12x12 in a 12x12 padding, so windows reach off-grid cells of small floors
@@ -554,22 +616,9 @@ def test_bit_mask_observation_is_robot_observations_bit_for_bit(view_radius):
     V <= 2 packs the rows into int32 masks; V = 3, 4 read the window's rows unpacked (no 31-bit
     mask); V = 11 (34 walled columns) takes the gathers; all must agree.
     """
-    env, params = make_procedural(pool_size=64, min_shape=(3, 3), max_shape=(12, 12), max_items=1,
-                                  view_radius=view_radius)
+    env, params, outputs = window_runs[0][view_radius]
     assert env.bit_windows == (view_radius <= 2) and env.row_windows == (view_radius <= 10)
-
-    def one(key):
-        key_reset, key_row, key_col, key_carry = jax.random.split(key, 4)
-        _, state = env.reset(key_reset, params)
-        pos = jnp.stack([jax.random.randint(key_row, (), 0, state.height),
-                         jax.random.randint(key_col, (), 0, state.width)])
-        state = state.replace(pos=pos, carrying=jax.random.bernoulli(key_carry))
-        target = jnp.where(state.carrying, state.goal, state.item_pos)
-        floor = params.pool.layouts.blocked[state.layout_index]
-        expected = robot_observations(floor, state.pos[None], target[None], state.carrying[None], view_radius, 12)
-        return env.observe(state), expected[0], env.blocked(state), floor, state.pos, state.height
-
-    obs, expected, unpacked, floor, pos, height = jax.jit(jax.vmap(one))(jax.random.split(jax.random.key(3), 4000))
+    obs, expected, unpacked, floor, pos, height = outputs
     np.testing.assert_array_equal(np.asarray(unpacked), np.asarray(floor))
     np.testing.assert_array_equal(np.asarray(obs).view(np.uint32), np.asarray(expected).view(np.uint32))
     side = 2 * view_radius + 1
@@ -591,28 +640,14 @@ def _numpy_free_runs(floor: np.ndarray, row: int, col: int) -> list[int]:
     return runs
 
 
-@pytest.mark.parametrize("view_radius", [0, 2, 3])
-def test_rays_are_the_free_runs_a_walk_would_find(view_radius):
+@pytest.mark.parametrize("view_radius", RAY_RADII)
+def test_rays_are_the_free_runs_a_walk_would_find(window_runs, view_radius):
     """``observe_rays``: the last 4 values are the free cells up, down, left and right over ``N - 1``,
     walked in NumPy on the floor (shelves, the floor's edge and the off-grid padding of small layouts stop
     a run); the observation before them is the plain one, bit for bit; the reset table holds them too."""
-    env, params = make_procedural(pool_size=64, min_shape=(3, 3), max_shape=(12, 12), max_items=1,
-                                  view_radius=view_radius, observe_rays=True)
-    plain_env, plain_params = make_procedural(pool_size=64, min_shape=(3, 3), max_shape=(12, 12), max_items=1,
-                                              view_radius=view_radius)
+    env, params, plain_env, outputs = window_runs[1][view_radius]
     assert env.obs_size == plain_env.obs_size + 4 and env.static_config() != plain_env.static_config()
-
-    def one(key):
-        key_reset, key_row, key_col = jax.random.split(key, 3)
-        reset_obs, state = env.reset(key_reset, params)
-        pos = jnp.stack([jax.random.randint(key_row, (), 0, state.height),
-                         jax.random.randint(key_col, (), 0, state.width)])
-        moved = state.replace(pos=pos)
-        return reset_obs, env.observe(state), env.observe(moved), plain_env.observe(moved), moved.pos, \
-            moved.layout_index
-
-    reset_obs, first_obs, obs, plain, pos, slot = (
-        np.asarray(x) for x in jax.jit(jax.vmap(one))(jax.random.split(jax.random.key(5), 500)))
+    reset_obs, first_obs, obs, plain, pos, slot = (np.asarray(x) for x in outputs)
     np.testing.assert_array_equal(reset_obs, first_obs)
     np.testing.assert_array_equal(obs[:, :-4].view(np.uint32), plain.view(np.uint32))
     floors = np.asarray(params.pool.layouts.blocked)
@@ -634,21 +669,27 @@ def test_packed_wall_rows_agree_with_the_grid_and_the_fleet_masks():
         window_masks,
     )
 
+    def probe(floor, cells, radius):  # one jitted program per case (not op by op)
+        rows = wall_rows(floor, radius)
+        bits = jax.vmap(lambda cell: wall_bit(rows, cell, radius))(cells)
+        out = [rows, unpack_wall_rows(rows, floor.shape, radius), bits]
+        if rows.shape[1] == 1:
+            out += [window_masks(floor, radius), pack_window_rows(plane_window_rows(rows, cells, radius)[..., 0])]
+        return out
+
     grid = np.asarray(jax.random.bernoulli(jax.random.key(4), 0.35, (7, 30)))
     cells = np.stack(np.meshgrid(np.arange(7), np.arange(30), indexing="ij"), axis=-1).reshape(-1, 2)
     for radius, width in ((2, 12), (1, 30), (2, 30)):  # 16, 32 and 34 walled columns: 1, 1 and 2 words
-        floor = jnp.asarray(grid[:, :width])
-        rows = wall_rows(floor, radius)
-        assert rows.shape == (7 + 2 * radius, 1 if width + 2 * radius <= 32 else 2) and rows.dtype == jnp.uint32
-        np.testing.assert_array_equal(np.asarray(unpack_wall_rows(rows, (7, width), radius)), grid[:, :width])
         mine = cells[cells[:, 1] < width]
-        bits = jax.vmap(lambda cell, rows=rows, radius=radius: wall_bit(rows, cell, radius))(jnp.asarray(mine))
+        rows, unpacked, bits, *masks = jax.jit(probe, static_argnums=2)(grid[:, :width], mine, radius)
+        assert rows.shape == (7 + 2 * radius, 1 if width + 2 * radius <= 32 else 2) and rows.dtype == jnp.uint32
+        np.testing.assert_array_equal(np.asarray(unpacked), grid[:, :width])
         np.testing.assert_array_equal(np.asarray(bits), grid[mine[:, 0], mine[:, 1]])
         assert row_windows_supported(width, radius) == (rows.shape[1] == 1)
+        assert len(masks) == (2 if rows.shape[1] == 1 else 0)
         if rows.shape[1] == 1:
-            expected = np.asarray(window_masks(floor, radius))[mine[:, 0], mine[:, 1]]
-            masks = pack_window_rows(plane_window_rows(rows, jnp.asarray(mine), radius)[..., 0])
-            np.testing.assert_array_equal(np.asarray(masks), expected)
+            expected = np.asarray(masks[0])[mine[:, 0], mine[:, 1]]
+            np.testing.assert_array_equal(np.asarray(masks[1]), expected)
 
 
 def test_reset_draws_slot_and_item_from_jax_random_bits(env_and_params):
@@ -793,7 +834,7 @@ def test_final_report_measures_heldout_and_ood_sets(env_and_params, ood, monkeyp
     from wrl_jax.core.evaluation import FinalContext
     from wrl_jax.envs.procedural import evaluation, layout_sets, reports
 
-    monkeypatch.setattr(layout_sets, "FINAL_HELDOUT_LAYOUTS", 48)
+    monkeypatch.setattr(layout_sets, "FINAL_HELDOUT_LAYOUTS", HELDOUT)
 
     def ood_sets(generator, ood_layouts=None):  # the fixture's sets (generated once for the module)
         assert generator == CONFIG
@@ -810,7 +851,7 @@ def test_final_report_measures_heldout_and_ood_sets(env_and_params, ood, monkeyp
     heldout, ood = report["heldout"], report["ood"]
     sampled = {k: v for k, v in report["heldout_sampled"].items() if k != "description"}
     assert sampled == {k: v for k, v in heldout.items() if k not in ("description", "overlap_with_training")}
-    assert heldout["layouts"] == 48 - heldout["overlap_with_training"] and heldout["overlap_with_training"] == 0
+    assert heldout["layouts"] == HELDOUT - heldout["overlap_with_training"] and heldout["overlap_with_training"] == 0
     assert set(ood) == {"dense", "narrow_shelves", "serpentine", "spiral", "comb", "study_8x8", "study_12x12",
                         "movingai"}
     assert [ood[name]["layouts"] for name in ("dense", "narrow_shelves", "serpentine", "movingai")] == [16, 16, 16, 3]
@@ -826,12 +867,12 @@ def test_final_report_measures_heldout_and_ood_sets(env_and_params, ood, monkeyp
     assert 0 < heldout["delivery_rate"] < 1  # the stand-in policy walks into shelves on some floors only
     assert report["final_report_seconds"] > 0
     details = reports.format_details(report)
-    assert "| heldout | 48 |" in details and "| movingai | 3 |" in details and "seed 8" in details
-    assert "| heldout (sampled policy) | 48 |" in details
+    assert f"| heldout | {HELDOUT} |" in details and "| movingai | 3 |" in details and "seed 8" in details
+    assert f"| heldout (sampled policy) | {HELDOUT} |" in details
     summary = {"eval_layouts": 64, "episodes_per_seed": 1, "success_rate": 1.0, "optimal_rate": 1.0,
                "mean_excess": 0.0, "collisions_per_episode": 0.0, **report}
     headline = reports.format_report(summary, "x")
-    assert "final: 48 held-out layouts" in headline and "final, sampled policy: delivered / excess" in headline
+    assert f"final: {HELDOUT} held-out layouts" in headline and "final, sampled policy: delivered / excess" in headline
 
 
 def test_final_sets_agree_with_the_periodic_evaluation_and_drop_training_layouts(env_and_params):
@@ -839,19 +880,19 @@ def test_final_sets_agree_with_the_periodic_evaluation_and_drop_training_layouts
 
     env, params = env_and_params
     params = params.replace(max_steps=jnp.int32(60))
-    heldout, overlap = layout_sets.heldout_set(env.generator, params.pool, count=48)
-    assert overlap == 0 and heldout.size == 48
+    heldout, overlap = layout_sets.heldout_set(env.generator, params.pool, count=HELDOUT)
+    assert overlap == 0 and heldout.size == HELDOUT
     # Plant three of them in a "training pool": the hash check finds and drops exactly those.
     planted = jax.tree.map(lambda t, h: t.at[:3].set(h[:3]), params.pool.layouts, heldout.layouts)
-    kept, overlap = layout_sets.heldout_set(env.generator, params.pool.replace(layouts=planted), count=48)
-    assert overlap == 3 and kept.size == 45
+    kept, overlap = layout_sets.heldout_set(env.generator, params.pool.replace(layouts=planted), count=HELDOUT)
+    assert overlap == 3 and kept.size == HELDOUT - 3
     # One batch over sets (padded to 20 item rows by the study map) = each pool evaluated alone.
     sets = [heldout, layout_sets.LayoutSet("study", "", jax.tree.map(
         lambda x: x[None], layout_sets.study_layout("12x12", env.max_shape)))]
     together = evaluation.evaluate_sets(_toward_target, jnp.arange(2), env, params, sets, [0, 1], overall="all")
     alone = jax.tree.map(np.asarray, jax.jit(jax.vmap(
         lambda net: evaluation.evaluate_pool(_toward_target, net, env, params, pool_from_layouts(
-            [_slot(heldout.layouts, i) for i in range(48)]))))(jnp.arange(2)))
+            [_slot(heldout.layouts, i) for i in range(HELDOUT)]))))(jnp.arange(2)))
     delivered = alone.delivered & alone.real
     assert together["heldout"]["episodes"] == alone.real.sum()
     assert together["heldout"]["delivery_rate"] == delivered.sum() / alone.real.sum()

@@ -7,6 +7,10 @@ a function of the update index alone; these tests check what is replaced, that t
 arrays stay those of a from-scratch pool, that training carries the renewed pool (same bits
 again), that the final report can list every layout training saw, and the
 errors.
+
+Programs are shared: one compiled refresh (``refresh_step``) serves every test, and every pool of the
+small generator has the fixture's 32 slots (the initial pool, four updates' refreshes regenerated at
+once, the held-out set), so its generator compiles once.
 """
 
 from __future__ import annotations
@@ -39,13 +43,17 @@ def small():
 
 
 @pytest.fixture(scope="module")
-def refreshed(small):
+def refresh_step(small):
+    """``env.params_for_update``, jitted once for the module."""
+    return jax.jit(small[0].params_for_update)
+
+
+@pytest.fixture(scope="module")
+def refreshed(small, refresh_step):
     """The params after each of the updates 0..4 (one compiled refresh)."""
-    env, params = small
-    step = jax.jit(env.params_for_update)
-    out = [params]
+    out = [small[1]]
     for update in range(5):
-        out.append(step(out[-1], jnp.int32(update)))
+        out.append(refresh_step(out[-1], jnp.int32(update)))
     return out
 
 
@@ -81,12 +89,12 @@ def test_a_refresh_renews_the_oldest_slots_and_recomputes_their_arrays(small, re
     assert (optimal > 0).all() and (optimal < 8 * 8 * 2).all()
 
 
-def test_the_refresh_is_a_function_of_the_update_alone(small, refreshed):
+def test_the_refresh_is_a_function_of_the_update_alone(small, refresh_step, refreshed):
     env, params = small
-    again = jax.jit(env.params_for_update)(params, jnp.int32(0))
+    again = refresh_step(params, jnp.int32(0))
     for a, b in zip(_leaves(again), _leaves(refreshed[1])):
         np.testing.assert_array_equal(a, b)
-    other = jax.jit(env.params_for_update)(params, jnp.int32(1))
+    other = refresh_step(params, jnp.int32(1))
     assert not np.array_equal(_slot_hashes(other), _slot_hashes(refreshed[1]))
     # Without pool_refresh the params are returned as they are (no program change for other runs).
     fixed_env, fixed = make_procedural(**{**SMALL, "pool_refresh": 0})
@@ -95,17 +103,18 @@ def test_the_refresh_is_a_function_of_the_update_alone(small, refreshed):
 
 def test_training_layout_hashes_list_every_layout_training_saw(small, refreshed):
     env, params = small
-    seen = env.training_layout_hashes(refreshed[5], updates=5)
-    for state in refreshed:
+    # After 4 updates (4 x 8 = 32 refreshed slots, regenerated in one call of the pool's own program).
+    seen = env.training_layout_hashes(refreshed[4], updates=4)
+    for state in refreshed[:5]:
         assert np.isin(_slot_hashes(state), seen).all()
     initial = pool_hashes(generate_pool(jax.random.key(SMALL["seed"]), POOL, env.generator))
     assert np.isin(initial, seen).all()
-    assert seen.size <= POOL + 5 * REFRESH and seen.size > POOL + 3 * REFRESH
+    assert seen.size <= POOL + 4 * REFRESH and seen.size > POOL + 2 * REFRESH
     with pytest.raises(ValueError, match="number of updates"):
         env.training_layout_hashes(params, updates=None)
     # The held-out set drops what training saw, given as hashes.
-    heldout, overlap = layout_sets.heldout_set(env.generator, seen, count=16)
-    assert overlap + heldout.size == 16 and not np.isin(pool_hashes(heldout.layouts), seen).any()
+    heldout, overlap = layout_sets.heldout_set(env.generator, seen, count=POOL)
+    assert overlap + heldout.size == POOL and not np.isin(pool_hashes(heldout.layouts), seen).any()
 
 
 def test_ppo_and_dqn_train_on_the_renewed_pool(small, refreshed):
@@ -150,7 +159,8 @@ def test_bad_refresh_settings_fail_clearly(small, tmp_path):
     assert mapped.env.overrides()["observe_map"] is True
     with pytest.raises(ValueError, match="--observe-rays: procedural options"):
         parse("ppo", ["--env", "Fleet-12x12-v0", "--observe-rays", "True", "--out", str(tmp_path / "j")])
-    rays = parse("ppo", ["--env", "Procedural-Warehouse-v0", "--observe-rays", "True", "--out", str(tmp_path / "k")])
+    rays = parse("ppo", ["--env", "Procedural-Warehouse-v0", "--observe-rays", "True", "--pool-size", "64",
+                         "--out", str(tmp_path / "k")])  # the pool size of `command` below: one pool program
     assert build(rays.spec, rays.config, rays.env).env.observe_rays
     with pytest.raises(ValueError, match="--visit-levels: procedural options"):
         parse("ppo", ["--env", "Fleet-12x12-v0", "--visit-levels", "3", "--out", str(tmp_path / "e")])
