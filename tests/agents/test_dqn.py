@@ -277,9 +277,9 @@ def test_checkpoint_round_trip_and_exact_resume(tmp_path, small_env):
 
     stopped = training.run(trainer, tmp_path / "resumed", metadata=meta, stop_after=40)
     assert not stopped.finished and stopped.updates_done == 40
-    # The checkpoint is all the resumed run reads: a Trainer holds compiled programs, no run state (so the same
-    # one serves, as in tests/training/test_training.py, and nothing recompiles).
-    resumed = training.run(trainer, tmp_path / "resumed", metadata=meta, resume=True)
+    # The checkpoint is all the resumed run reads: a fresh Trainer, as a new process would build (the session's
+    # compilation cache serves its programs' compile).
+    resumed = training.run(training.Trainer(algo, seeds, loop), tmp_path / "resumed", metadata=meta, resume=True)
     assert resumed.finished
     # The replay buffer, optimizer, target network, env states and keys all round-trip: bit-identical.
     assert tree_equal(straight.runners, resumed.runners)

@@ -206,6 +206,7 @@ def test_correlated_exploration_keeps_its_direction(corridor, sac_run):
     # rho = 0: independent uniform actions.
     independent_algo, independent_runners, _, _, _ = sac_run
     assert independent_algo.config.noise_correlation == 0.0 and independent_algo.config.learning_starts == 500
+    assert independent_algo.config.num_envs == 8  # 62 vector steps of 8 envs: the 496 warm-up rows
     warm_up = np.asarray(independent_runners.buffer.data.action[:, : 8 * 62]).reshape(len(SEEDS), 62, 8, 2)
     lag1 = [lag1_correlation(seed_actions) for seed_actions in warm_up]
     print("rho 0.9:", lag1_correlation(actions), "rho 0, per seed:", lag1)

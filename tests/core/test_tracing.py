@@ -6,6 +6,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from wrl_jax.core.tracing import traced_once
 
@@ -56,3 +57,9 @@ def test_the_cond_lowers_to_the_same_program_with_one_trace():
     for a, b in zip(jax.tree.leaves(results[0]), jax.tree.leaves(results[1])):
         if not jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_replay_refuses_arguments_of_another_structure():
+    replay, _ = traced_once(lambda d: d["a"] + d["b"], {"a": jnp.float32(1.0), "b": jnp.float32(2.0)})
+    with pytest.raises(TypeError, match="traced with"):
+        replay({"a": jnp.float32(1.0), "c": jnp.float32(2.0)})

@@ -126,8 +126,9 @@ def test_metric_rows_and_evaluations(algo, reference):
 
 
 def test_log_every_aggregates_sums_and_means(algo):
-    """Two chunks of 2 updates, logged every 2: one row per chunk and seed, sums and means of its 2 updates.
-    ``chunked``'s settings but for ``log_every`` (which only :meth:`Trainer.metric_rows` reads): its program."""
+    """Updates logged every 2: one row per 2 updates and seed, sums and means of its 2 updates. ``chunked``'s
+    settings but for ``log_every`` (which only :meth:`Trainer.metric_rows` reads): its program. The two chunks'
+    metrics are also read as one chunk of 4, so a row per chunk instead of per ``log_every`` would fail."""
     trainer = training.Trainer(algo, SEEDS, training.LoopConfig(chunk_updates=2, log_every=2, eval_every=3,
                                                                 progress=False))
     runners = trainer.init()
@@ -137,6 +138,8 @@ def test_log_every_aggregates_sums_and_means(algo):
     assert [row["update"] for row in rows] == [2, 4]
     assert rows[0]["episodes"] == pytest.approx(first["episodes"][:2, 0].sum())
     assert rows[1]["loss"] == pytest.approx(second["loss"][:2, 0].mean())  # updates 3 and 4
+    joined = {name: np.concatenate([first[name], second[name]]) for name in first}  # one chunk of 4 updates
+    assert [row for row in trainer.metric_rows(joined, 0) if row["seed"] == SEEDS[0]] == rows
 
 
 def test_loop_config_validation():

@@ -1,8 +1,9 @@
 """The continuous warehouse through Gymnasium: the checker passes, the numbers are the JAX
 environment's, bad actions fail clearly, and Stable-Baselines3's SAC trains on it.
 
-The adapter compiles its reset and step once per environment and params: the tests share two of them, the 8x8 map
-as SAC and TD3 train on it (``TRAINING_8X8``) and the dynamic 12x12 map (``DYNAMIC_12X12``), both randomized.
+The adapter compiles its reset and step once per static configuration (params, such as ``randomize``, do not
+count; the last test checks it): the tests share two settings, the 8x8 map as SAC and TD3 train on it
+(``TRAINING_8X8``) and the dynamic 12x12 map (``DYNAMIC_12X12``).
 """
 
 from __future__ import annotations

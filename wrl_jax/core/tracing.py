@@ -21,9 +21,12 @@ def traced_once(fn: Callable[..., Any], *args: Any) -> tuple[Callable[..., Any],
     shapes (call it with arguments of those shapes only); ``shapes`` are its outputs' ``ShapeDtypeStruct``s."""
     jaxpr, shapes = jax.make_jaxpr(fn, return_shape=True)(*args)
     run = jax.extend.core.jaxpr_as_fun(jaxpr)
-    out_tree = jax.tree.structure(shapes)
+    in_tree, out_tree = jax.tree.structure(args), jax.tree.structure(shapes)
 
     def replay(*call_args: Any) -> Any:
-        return jax.tree.unflatten(out_tree, run(*jax.tree.leaves(call_args)))
+        leaves, tree = jax.tree.flatten(call_args)
+        if tree != in_tree:
+            raise TypeError(f"traced_once: called with {tree}, traced with {in_tree}")
+        return jax.tree.unflatten(out_tree, run(*leaves))
 
     return replay, shapes

@@ -5,7 +5,8 @@ crowds, a few evaluation episodes), so compiling is nearly all of their time. Th
 setting (``tests/conftest.py``: LLVM level 1) compiles a transition of 19 agents in about 2.7 s of
 CPU; level 0 in about 1 s, and runs it a few times slower, which these runs do not feel. The level
 only changes how LLVM optimizes the machine code, not the program XLA builds. rware's programs are
-integer logic (positions, directions, requests), so their results do not depend on it: the parity
+integer logic (positions, directions, requests) and float operations that are exact (sums of 0/1
+rewards, coordinates divided by the grid size), so their results do not depend on it: the parity
 tests still compare with rware exactly. (Float programs may round differently at another level;
 the other families' tests keep the session's.)
 
