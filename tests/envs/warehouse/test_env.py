@@ -22,11 +22,12 @@ def jitted(env, method: str):
     """``jax.jit(env.<method>)``, one per static configuration (size, item capacity, carrying flag) and method.
 
     Environments made with other constants differ only in their default params, which these methods do not
-    read (every call passes ``params``), so one program serves them all.
+    read (every call passes ``params``), so one program serves them all. The method is bound to the environment
+    without its default params, so a method that did read them would fail loudly instead of using the first's.
     """
     key = (env.static_config(), method)
     if key not in _JITTED:
-        _JITTED[key] = jax.jit(getattr(env, method))
+        _JITTED[key] = jax.jit(getattr(env.without_default_params(), method))
     return _JITTED[key]
 
 

@@ -74,11 +74,12 @@ def batched_rollout(env: Warehouse):
 
     Keyed by the environment's static configuration, not the environment: two environments made with other
     reward constants differ only in their default params (so they are unequal, and a cache keyed by them
-    would compile once per configuration), and the rollout reads only the params it is passed.
+    would compile once per configuration), and the rollout reads only the params it is passed (it runs on the
+    environment without default params, so reading them would fail loudly).
     """
     key = env.static_config()
     if key not in _BATCHED_ROLLOUTS:
-        _BATCHED_ROLLOUTS[key] = jax.jit(jax.vmap(functools.partial(_episode_stream, env),
+        _BATCHED_ROLLOUTS[key] = jax.jit(jax.vmap(functools.partial(_episode_stream, env.without_default_params()),
                                                   in_axes=(None, 0, 0, 0, 0)))
     return _BATCHED_ROLLOUTS[key]
 
