@@ -1,4 +1,4 @@
-"""The training driver shared by every algorithm (PPO, DQN).
+"""The training driver shared by every algorithm (PPO, DQN, SAC, TD3).
 
 Two shapes of the same loop:
 
