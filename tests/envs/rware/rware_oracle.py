@@ -14,7 +14,7 @@ import contextlib
 
 import numpy as np
 import pytest
-import rware_jit
+import fast_compile
 
 nx = pytest.importorskip("networkx")
 pytest.importorskip("rware")
@@ -26,10 +26,10 @@ from wrl_jax.envs.rware.env import Rware  # noqa: E402
 
 __all__ = ["Action", "Direction", "RewardType", "Warehouse"]
 
-STEP = rware_jit.jit(Rware.transition_with, static_argnums=0)
+STEP = fast_compile.jit(Rware.transition_with, static_argnums=0)
 """One compiled step per static configuration (the env is a static argument, its params explicit), compiled at
-LLVM level 0 (``rware_jit``: these runs are a few hundred steps, compiling is their time)."""
-OBSERVE = rware_jit.jit(Rware.get_obs, static_argnums=0)
+LLVM level 0 (``fast_compile``: these runs are a few hundred steps, compiling is their time)."""
+OBSERVE = fast_compile.jit(Rware.get_obs, static_argnums=0)
 
 CUSTOM_LAYOUT = """
 g..x.x..g

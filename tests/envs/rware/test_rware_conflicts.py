@@ -8,7 +8,7 @@ networkx for ``tie_order="set"`` (its node order is CPython's hash-set order in 
 the insertion-ordered copy for ``tie_order="insertion"``.
 
 Programs: one per grid, tie order and agent count (:func:`resolver`, cached, compiled at LLVM level 0 by
-``rware_jit``); ``test_unrolled_rotation``'s 4 agents on the 3 x 3 grid reuse the crowds' programs of that size.
+``fast_compile``); ``test_unrolled_rotation``'s 4 agents on the 3 x 3 grid reuse the crowds' programs of that size.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import functools
 import jax
 import numpy as np
 import pytest
-import rware_jit
+import fast_compile
 import rware_oracle as oracle
 
 from wrl_jax.envs.rware.conflicts import resolve_moves
@@ -82,7 +82,7 @@ def _tied(sub) -> bool:
 def resolver(side: int, tie_order: str, height: int | None = None):
     """One jitted function per grid and tie order (each agent count its own program), shared by the tests."""
     grid_size = (side if height is None else height, side)
-    return rware_jit.jit(jax.vmap(functools.partial(resolve_moves, grid_size=grid_size, tie_order=tie_order)))
+    return fast_compile.jit(jax.vmap(functools.partial(resolve_moves, grid_size=grid_size, tie_order=tie_order)))
 
 
 CASES = 300

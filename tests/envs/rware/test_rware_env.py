@@ -9,7 +9,7 @@ import gymnasium as gym
 import jax
 import numpy as np
 import pytest
-import rware_jit
+import fast_compile
 
 import wrl_jax
 from wrl_jax.core import registry
@@ -114,7 +114,7 @@ def test_random_episodes_under_jit():
     env, params = wrl_jax.make("rware-tiny-3ag-easy-v2")
     n = env.num_agents
 
-    @rware_jit.jit  # LLVM level 0: a short run, compiling is its time
+    @fast_compile.jit  # LLVM level 0: a short run, compiling is its time
     @jax.vmap
     def rollout(key):
         obs, state = env.reset(key)

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import rware_jit
+import fast_compile
 
 from wrl_jax.cli import options as cli_options
 from wrl_jax.cli import train as cli_train
@@ -51,8 +51,8 @@ def greedy_action(scripted_team: jax.Array, obs: jax.Array) -> jax.Array:
 
 @pytest.fixture(scope="module")
 def evaluate():
-    """The hook, jitted (one program per environment), compiled at LLVM level 0 (``rware_jit``)."""
-    return rware_jit.jit(evaluation.evaluate_policy, static_argnums=(0, 2))
+    """The hook, jitted (one program per environment), compiled at LLVM level 0 (``fast_compile``)."""
+    return fast_compile.jit(evaluation.evaluate_policy, static_argnums=(0, 2))
 
 
 def test_a_delivering_team_solves_and_an_idle_one_does_not(evaluate):

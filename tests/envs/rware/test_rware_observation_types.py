@@ -14,7 +14,7 @@ normalised coordinates, the tiny map and custom ones (square for the transposed 
 does not fail).
 
 Programs: one step and one observation per configuration (``rware_oracle.STEP``, ``OBSERVE``), one batched
-episode per type in the jit-and-vmap test, all compiled at LLVM level 0 (``rware_jit``).
+episode per type in the jit-and-vmap test, all compiled at LLVM level 0 (``fast_compile``).
 
 Knobs: ``WRL_RWARE_OBS_STEPS`` (steps per configuration, default 45) and ``WRL_RWARE_OBS_ALL=1``
 (every combination of type, range, direction, layers, agent count and messages).
@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import rware_jit
+import fast_compile
 import rware_oracle as oracle
 from rware.warehouse import ImageLayer, ObservationType
 
@@ -266,7 +266,7 @@ def test_spaces_shapes_and_batches_under_jit_and_vmap():
         space = env.observation_space(params)
         action = np.zeros((3, 2, 3) if kind == "dict" else (3, 2), np.int32)
 
-        @rware_jit.jit  # the batched reset and three batched steps: one program per type
+        @fast_compile.jit  # the batched reset and three batched steps: one program per type
         def episode(params, env=env, action=action):
             _, state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(jax.random.key(0), 3), params)
 

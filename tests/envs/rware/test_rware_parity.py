@@ -10,7 +10,7 @@ hash-set order in small components, which our default ``tie_order="set"`` emulat
 such ties, ``set_order_tie``); ``tie_order="insertion"`` is checked against rware with networkx
 keeping insertion order in ``subgraph`` (``rware_oracle.insertion_order``).
 
-Programs: one step per static configuration (``rware_oracle.STEP``), compiled at LLVM level 0 (``rware_jit``:
+Programs: one step per static configuration (``rware_oracle.STEP``), compiled at LLVM level 0 (``fast_compile``:
 the same results, a third of the compile time; these runs are a few hundred steps).
 
 Knobs: ``WRL_RWARE_PARITY_STEPS`` (steps per configuration, default 30), and

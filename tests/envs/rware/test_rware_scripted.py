@@ -3,7 +3,7 @@ on the evaluation's episodes, that it plays by the rules (valid actions, no bump
 and ``python -m wrl_jax.plan --planner scripted``.
 
 Programs: the tests' own (the rules' episodes, the two state-policy runs in one program) and small-4ag's teams
-(``TEAM_EPISODES``) compile at LLVM level 0 (``rware_jit``); tiny-4ag's teams (``team_and_random``) compile as the
+(``TEAM_EPISODES``) compile at LLVM level 0 (``fast_compile``); tiny-4ag's teams (``team_and_random``) compile as the
 plan command compiles them, and its test runs that environment: the command's programs come from the caches."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import rware_jit
+import fast_compile
 
 from wrl_jax.cli import plan as plan_cli
 from wrl_jax.core import registry
@@ -24,8 +24,8 @@ from wrl_jax.envs.rware import evaluation, make_rware, scripted
 from wrl_jax.envs.rware.types import FORWARD, NUM_ACTIONS, TOGGLE_LOAD
 
 STEP_X, STEP_Y = np.array(scripted.STEP_X), np.array(scripted.STEP_Y)
-TEAM_EPISODES = rware_jit.fast(scripted.team_episodes, (0,), ("num_episodes", "horizon", "seed", "team"))
-"""``scripted.team_episodes`` compiled at LLVM level 0 (``rware_jit``); the same numbers, in less compile time."""
+TEAM_EPISODES = fast_compile.fast(scripted.team_episodes, (0,), ("num_episodes", "horizon", "seed", "team"))
+"""``scripted.team_episodes`` compiled at LLVM level 0 (``fast_compile``); the same numbers, in less compile time."""
 
 
 def python_bfs(seed: np.ndarray, passable: np.ndarray) -> np.ndarray:
@@ -75,7 +75,7 @@ def test_a_state_policy_leaves_the_environment_draws_alone():
     env, params = registry.make("rware-tiny-2ag-v2")
     forward = jnp.full(env.num_agents, FORWARD, jnp.int32)
 
-    @rware_jit.jit  # both runs in one program
+    @fast_compile.jit  # both runs in one program
     def both(params):
         return (evaluation.run_episodes(lambda obs: forward, env, params, 2, 40),
                 evaluation.run_episodes(lambda key, state: forward, env, params, 2, 40, sees_state=True))
@@ -123,7 +123,7 @@ def test_it_plays_by_the_rules():
     env, params = registry.make("rware-tiny-4ag-v2")
     height, width = params.grid_size
 
-    @rware_jit.jit
+    @fast_compile.jit
     def episode(key):
         state = env.reset(key, params)[1]
 

@@ -6,7 +6,7 @@ tuples (networkx 3.6.1, CPython 3.11). The emulation is held to real objects: th
 sets filled one key at a time and refilled from another set (as networkx does), and whole move
 graphs with crowds, chains, stationary agents and cycles.
 
-Programs: compiled at LLVM level 0 (``rware_jit``); ``component_rank`` one per grid width and agent count
+Programs: compiled at LLVM level 0 (``fast_compile``); ``component_rank`` one per grid width and agent count
 (:func:`compiled`), the largest-component cases on the grids of ``test_component_rank_is_networkx_component_copy_order``.
 """
 
@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import rware_jit
+import fast_compile
 
 from wrl_jax.envs.rware.set_order import (
     NEIGHBOURS,
@@ -45,7 +45,7 @@ def halves(values: list[int]) -> tuple[np.ndarray, np.ndarray]:
 
 def test_tuple_hash_is_pythons_on_every_pair_up_to_200():
     x, y = (grid.ravel() for grid in np.meshgrid(np.arange(201), np.arange(201), indexing="ij"))
-    high, low = rware_jit.jit(tuple_hash)(x.astype(np.int32), y.astype(np.int32))
+    high, low = fast_compile.jit(tuple_hash)(x.astype(np.int32), y.astype(np.int32))
     got = (np.asarray(high, np.uint64) << np.uint64(32)) | np.asarray(low, np.uint64)
     expected = np.array([hash((int(a), int(b))) & (2**64 - 1) for a, b in zip(x, y)], np.uint64)
     assert got.dtype == np.uint64 and np.array_equal(got, expected)
@@ -83,7 +83,7 @@ def filled(keys: list) -> set:
 
 def test_set_positions_follow_a_set_filled_key_by_key():
     keys, high, low, counts = random_sets(seed=0, cases=1200)
-    positions = np.asarray(rware_jit.jit(jax.vmap(set_positions))(high, low, counts))
+    positions = np.asarray(fast_compile.jit(jax.vmap(set_positions))(high, low, counts))
     built = [filled(elements) for elements in keys]
     assert_positions(positions, keys, built)
 
@@ -98,7 +98,7 @@ def test_set_positions_follow_a_set_filled_key_by_key():
 
 def test_copy_positions_follow_a_set_built_from_another_set():
     keys, high, low, counts = random_sets(seed=1, cases=1200)
-    positions = np.asarray(rware_jit.jit(jax.vmap(copy_positions))(high, low, counts))
+    positions = np.asarray(fast_compile.jit(jax.vmap(copy_positions))(high, low, counts))
     inner = [filled(elements) for elements in keys]
     built = [set(iter(the_set)) for the_set in inner]  # as show_nodes: set() of a generator over the BFS set
     assert_positions(positions, keys, built)
@@ -128,7 +128,7 @@ def test_several_sets_at_once_are_each_their_own_set():
                 expected[kind, case, members] = [list(built).index(key) for key in keys[first:first + size]]
             first += size
     for kind, function in enumerate((set_positions, copy_positions)):
-        got = rware_jit.jit(jax.vmap(function))(high, low, count, turn, group)
+        got = fast_compile.jit(jax.vmap(function))(high, low, count, turn, group)
         assert np.array_equal(np.asarray(got), expected[kind]), kind
 
 
@@ -172,7 +172,7 @@ def compiled(width: int):
     """``component_rank`` over a batch of graphs, ``needed`` optional."""
     def rank(start, target, needed=None):
         return component_rank(start, target, width, needed)
-    return rware_jit.jit(jax.vmap(rank))
+    return fast_compile.jit(jax.vmap(rank))
 
 
 RANK_GRIDS = {4: (5, 4), 8: (7, 6), 19: (16, 14)}
@@ -242,7 +242,7 @@ def test_probe_table_is_pythons_hash_and_first_precedes_in_triple_is_pythons_ord
     assert table[7 * width + 3, 0] == hash((3, 7)) & 7  # row y W + x holds (x, y)'s home slot first
     cells = np.random.default_rng(3).integers(0, height * width, size=(6000, 3))
     cells = cells[[len(set(row)) == 3 for row in cells]]
-    ours = np.asarray(rware_jit.jit(first_precedes_in_triple)(*(jnp.asarray(table)[cells[:, k]] for k in range(3))))
+    ours = np.asarray(fast_compile.jit(first_precedes_in_triple)(*(jnp.asarray(table)[cells[:, k]] for k in range(3))))
     expected = []
     for row in cells:
         first, middle, last = ((int(c) % width, int(c) // width) for c in row)
@@ -279,7 +279,7 @@ def test_triple_table_is_pythons_order_for_every_cell_and_pair_of_neighbours(hei
                     directions.append((cell[1] * width + cell[0], middle_cell, direction))
                 checked.append(bool(table[middle_cell, a, b]))
     cells, centres, expected = np.array(directions, np.int32).T
-    got = np.asarray(rware_jit.jit(triple_direction, static_argnums=2)(cells, centres, width))
+    got = np.asarray(fast_compile.jit(triple_direction, static_argnums=2)(cells, centres, width))
     for cell, centre, direction, ours in zip(cells, centres, expected, got):
         assert ours == direction, (cell % width, cell // width, centre % width, centre // width)
     assert len(checked) >= 2 * (max(height, width) - 2)

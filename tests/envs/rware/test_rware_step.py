@@ -1,6 +1,6 @@
 """The RWARE step's fast paths: its auto-reset gives the base class's bits, its reset draws are uniform.
 
-Programs: each test's own, compiled at LLVM level 0 (``rware_jit``); the step test's resets, actions and both
+Programs: each test's own, compiled at LLVM level 0 (``fast_compile``); the step test's resets, actions and both
 rollouts are one program per key type."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import rware_jit
+import fast_compile
 
 from wrl_jax.core.environment import Environment
 from wrl_jax.envs.rware import make_rware
@@ -23,7 +23,7 @@ def test_the_step_is_the_base_class_step_bit_for_bit(typed):
     env, params = make_rware(2, layout="x.x\ng.g", request_queue_size=1, max_steps=7, max_inactivity_steps=3)
     make_key = jax.random.key if typed else jax.random.PRNGKey
 
-    @rware_jit.jit  # the resets, the actions and both rollouts: one program
+    @fast_compile.jit  # the resets, the actions and both rollouts: one program
     def rollouts():
         keys = jax.vmap(make_key)(jnp.arange(4))
         _, state = jax.vmap(env.reset)(keys)
@@ -53,12 +53,12 @@ def test_reset_draws_are_uniform_ordered_samples_without_replacement():
     """``distinct`` (the reset's cells and queue): every ordered triple of 6 values equally likely, no repeats,
     on both its paths (one by one up to SEQUENTIAL_LIMIT draws, ``top_k`` above)."""
     keys = jax.random.split(jax.random.key(0), 60_000)
-    triples = np.asarray(rware_jit.jit(jax.vmap(lambda k: distinct(k, 6, 3)))(keys))
+    triples = np.asarray(fast_compile.jit(jax.vmap(lambda k: distinct(k, 6, 3)))(keys))
     counts = np.unique(triples, axis=0, return_counts=True)[1]
     assert len(counts) == 120 and triples.min() >= 0 and triples.max() < 6
     assert all(len(set(row)) == 3 for row in triples[:1000])
     chi2 = ((counts - 500) ** 2 / 500).sum()
     assert chi2 < 180, chi2  # 119 degrees of freedom: p < 0.0003 above 180
     for population, count in ((110, 19), (300, SEQUENTIAL_LIMIT + 1)):
-        draws = np.asarray(rware_jit.jit(jax.vmap(lambda k, p=population, c=count: distinct(k, p, c)))(keys[:64]))
+        draws = np.asarray(fast_compile.jit(jax.vmap(lambda k, p=population, c=count: distinct(k, p, c)))(keys[:64]))
         assert all(len(set(row)) == count for row in draws) and draws.min() >= 0 and draws.max() < population

@@ -4,7 +4,7 @@ Each test sets up a rware ``Warehouse`` as the upstream test does (agents and sh
 hand after a reset, here a seeded one), converts it with ``from_rware``, steps ours, and asserts
 the outcome the upstream test asserts, on our state. rware is stepped alongside and must agree
 with ours on everything at every step (``Pair.step``; one program per configuration, ``rware_oracle.STEP``, compiled
-at LLVM level 0 as the tests' other programs, ``rware_jit``). test_wrappers.py is not ported: it tests
+at LLVM level 0 as the tests' other programs, ``fast_compile``). test_wrappers.py is not ported: it tests
 rware's Gymnasium wrappers, which this family does not have.
 """
 
@@ -14,7 +14,7 @@ import gymnasium as gym
 import jax
 import numpy as np
 import pytest
-import rware_jit
+import fast_compile
 import rware_oracle as oracle
 from rware_oracle import Action, Direction, RewardType, Warehouse
 
@@ -350,7 +350,7 @@ def test_reproducibility():
     """Same seed, same episodes (upstream: ``env.seed(s)`` then 5 resets; ours: the same key, the same bits)."""
     env, params = make_rware(1, shelf_columns=3, column_height=8, shelf_rows=3, request_queue_size=5,
                              max_inactivity_steps=10, max_steps=None, reward_type="global")
-    reset = rware_jit.jit(jax.vmap(env.reset))
+    reset = fast_compile.jit(jax.vmap(env.reset))
     for seed in range(5):
         keys = jax.random.split(jax.random.key(seed), 5)
         first, second = reset(keys), reset(keys)
