@@ -20,6 +20,7 @@ import jax
 
 from wrl_jax.agents.base import Algorithm
 from wrl_jax.training import driver
+from wrl_jax.training.loop_config import LoopConfig
 
 
 @dataclasses.dataclass
@@ -47,7 +48,7 @@ def train_batch(
     *,
     hyper: Any = None,
     env_params: Any = None,
-    loop: driver.LoopConfig | None = None,
+    loop: LoopConfig | None = None,
     mesh: Any = None,
 ) -> BatchRun:
     """Train one runner per entry of ``seeds`` in one program and evaluate them all.
@@ -59,7 +60,7 @@ def train_batch(
         loop: chunking and evaluation cadence (default: no progress bar).
         mesh: a device mesh (:func:`wrl_jax.training.sharding.make_mesh`) to shard the batch over.
     """
-    loop = loop or driver.LoopConfig(progress=False)
+    loop = loop or LoopConfig(progress=False)
     if mesh is None:
         trainer = driver.Trainer(algo, seeds, loop)
     else:
