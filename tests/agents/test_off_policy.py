@@ -2,8 +2,11 @@
 truncation, exact repeats, and learned behaviour on a warehouse small enough for CI.
 
 The learning runs share one compiled program per algorithm (module fixtures, three seeds vmapped). SAC's
-(``sac_run``) serves four tests: its learning, a second run's bits, and its replay buffer (truncations, and the
-warm-up's independent uniform actions for the correlated-exploration test).
+(``sac_run``) serves five tests: its learning, a second run's bits, the driver's chunks and resume (which must give
+its bits), and its replay buffer (truncations, and the warm-up's independent uniform actions for the
+correlated-exploration test). Programs whose results are only compared with thresholds (TD3's and PPO's learning
+runs, every evaluation, the correlated collection) compile at LLVM level 0 (``fast_compile``); SAC's training,
+whose bits are compared, at the session's level.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import fast_compile
 
 from wrl_jax import training
 from wrl_jax.agents.base import make_train_seeds
@@ -47,23 +51,38 @@ def corridor():
 
 
 def train_and_evaluate(algo, env, params):
-    """The seeds' runners and metrics, their evaluation, and the compiled training (to run it again)."""
-    train = jax.jit(make_train_seeds(algo))
-    runners, metrics = train(training.seed_keys(SEEDS))
+    """The seeds' runners and metrics, and their evaluation: read against thresholds only, so compiled at LLVM
+    level 0 (two programs, as the package's driver trains and evaluates)."""
+    runners, metrics = fast_compile.jit(make_train_seeds(algo))(training.seed_keys(SEEDS))
     actors = jax.vmap(algo.network_params)(runners)
-    evaluation = jax.jit(jax.vmap(lambda p: seed_summary(evaluate_policy(algo.greedy_action, p, env, params))))(actors)
-    return runners, metrics, jax.tree.map(np.asarray, evaluation), train
+    evaluation = fast_compile.jit(jax.vmap(lambda p: seed_summary(evaluate_policy(algo.greedy_action, p, env,
+                                                                                  params))))(actors)
+    return runners, metrics, jax.tree.map(np.asarray, evaluation)
 
 
 @pytest.fixture(scope="module")
 def sac_run(corridor):
+    """SAC's learning run through the driver in one chunk (``Trainer``): its start, runners and metrics (seeds first),
+    the evaluation, and ``train`` to run the compiled programs again. Its bits are the chunked and resumed runs'."""
     env, params = corridor
     algo = SAC(tiny(SACConfig, initial_alpha=0.1), env, params)
-    return (algo, *train_and_evaluate(algo, env, params))
+    trainer = training.Trainer(algo, SEEDS, training.LoopConfig(chunk_updates=algo.num_updates, eval_every=0,
+                                                                progress=False))
+
+    def train():
+        start = trainer.init()
+        runners, metrics, _ = trainer.run_chunk(start, 0)
+        return start, runners, {k: v.T for k, v in metrics.items()}
+
+    start, runners, metrics = train()
+    actors = jax.vmap(algo.network_params)(runners)
+    evaluation = fast_compile.jit(jax.vmap(lambda p: seed_summary(evaluate_policy(algo.greedy_action, p, env,
+                                                                                  params))))(actors)
+    return algo, start, runners, metrics, jax.tree.map(np.asarray, evaluation), train
 
 
 def test_sac_learns_to_deliver_without_collisions(sac_run):
-    _, _, metrics, evaluation, _ = sac_run
+    _, _, _, metrics, evaluation, _ = sac_run
     print({k: v.tolist() for k, v in evaluation.items()})
     assert evaluation["eval_solved"].tolist() == [1.0] * len(SEEDS)  # measured: 3/3, 9 steps each
     assert np.all(evaluation["eval_mean_steps"] <= 12)
@@ -80,16 +99,17 @@ def test_sac_learns_to_deliver_without_collisions(sac_run):
 def test_td3_learns_to_deliver(corridor):
     env, params = corridor
     algo = TD3(tiny(TD3Config), env, params)
-    _, _, evaluation, _ = train_and_evaluate(algo, env, params)
+    _, _, evaluation = train_and_evaluate(algo, env, params)
     print({k: v.tolist() for k, v in evaluation.items()})
     assert (evaluation["eval_success_rate"] == 1.0).sum() >= 2  # measured: 2/3 seeds solve it in 8,000 steps
 
 
 def test_same_seed_same_bits_and_seeds_differ(sac_run):
-    """The same seeds run again (``sac_run``'s compiled training: a separate trace of the same updates is
-    compared bit for bit in test_sac_chunks_and_resume_give_the_same_bits) give the same bits; seeds differ."""
-    _, runners, _, _, train = sac_run
-    again, _ = train(training.seed_keys(SEEDS))
+    """The same seeds run again (``sac_run``'s compiled programs: a separate trace of the same updates, in other
+    chunks, is compared bit for bit in test_sac_chunks_and_resume_give_the_same_bits) give the same bits; seeds
+    differ."""
+    _, _, runners, _, _, train = sac_run
+    _, again, _ = train()
     for a, b in zip(jax.tree_util.tree_leaves(runners), jax.tree_util.tree_leaves(again)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     kernels = np.asarray(runners.actor["params"]["Dense_0"]["kernel"])
@@ -100,7 +120,7 @@ def test_truncation_is_stored_with_the_reached_observation(sac_run):
     """Episodes of the corridor end by truncation at 60 steps early in training: the stored ``next_obs``
     of such a transition is where the robot got to (one step from ``obs``), not the next episode's start,
     and ``terminated`` is False there, so the target bootstraps from it."""
-    algo, runners, _, _, _ = sac_run
+    algo, _, runners, _, _, _ = sac_run
     data = jax.tree.map(lambda x: np.asarray(x[0]), runners.buffer.data)
     env = algo.env
     step = float(algo.env_params.v_max * algo.env_params.dt) * 1.25  # a gain may stretch a step
@@ -127,7 +147,7 @@ def test_squashed_gaussian_density_counts_tanh_and_the_box(corridor):
     wide = WideBox(params, num_rays=8)
     algo = SAC(tiny(SACConfig), wide, params)
 
-    @jax.jit  # one program: eagerly the networks' init and the density compile op by op
+    @fast_compile.jit  # one program (eagerly the networks' init and the density compile op by op); a tolerance: level 0
     def draw(obs):
         actor, _ = algo.init_networks(jax.random.key(3))
         unit, log_prob = algo.sample_unit(actor, obs, jax.random.key(4))
@@ -197,14 +217,14 @@ def test_correlated_exploration_keeps_its_direction(corridor, sac_run):
     env, params = corridor
     algo = SAC(tiny(SACConfig, noise_correlation=0.9), env, params)
     # The collection alone (the gradient step is not compiled): 200 vector steps, all before learning starts.
-    collect = jax.jit(lambda key: jax.lax.scan(algo._env_step, algo.init(key), jnp.zeros(200, jnp.int32))[0])
+    collect = fast_compile.jit(lambda key: jax.lax.scan(algo._env_step, algo.init(key), jnp.zeros(200, jnp.int32))[0])
     runner = collect(jax.random.key(0))
     actions = np.asarray(runner.buffer.data.action[: 8 * 200]).reshape(200, 8, 2)
     lag1 = lag1_correlation(actions)
     assert lag1 > 0.75, lag1
     assert actions.min() < -0.9 and actions.max() > 0.9
     # rho = 0: independent uniform actions.
-    independent_algo, independent_runners, _, _, _ = sac_run
+    independent_algo, _, independent_runners, _, _, _ = sac_run
     assert independent_algo.config.noise_correlation == 0.0 and independent_algo.config.learning_starts == 500
     assert independent_algo.config.num_envs == 8  # 62 vector steps of 8 envs: the 496 warm-up rows
     warm_up = np.asarray(independent_runners.buffer.data.action[:, : 8 * 62]).reshape(len(SEEDS), 62, 8, 2)
@@ -225,10 +245,8 @@ def test_ppo_gaussian_policy_learns_the_corridor(corridor):
                        total_timesteps=16 * 32 * 40, learning_rate=3e-3, ent_coef=0.0, gamma=0.99, obs_encoding="raw")
     algo = PPO(config, env, params)
     assert algo.action_kind == "continuous"
-    runners, metrics = jax.jit(make_train_seeds(algo))(training.seed_keys(SEEDS))
+    runners, _, evaluation = train_and_evaluate(algo, env, params)  # at LLVM level 0: thresholds only
     actors = jax.vmap(algo.network_params)(runners)
-    evaluation = jax.tree.map(np.asarray, jax.jit(jax.vmap(
-        lambda p: seed_summary(evaluate_policy(algo.greedy_action, p, env, params))))(actors))
     print({k: v.tolist() for k, v in evaluation.items()})
     assert (evaluation["eval_solved"] == 1.0).sum() >= 2
     first = jax.tree.map(lambda x: np.asarray(x)[0], actors)
@@ -244,27 +262,22 @@ def test_ppo_gaussian_policy_learns_the_corridor(corridor):
     np.testing.assert_allclose(np.asarray(log_prob), expected, rtol=1e-5)
 
 
-def test_sac_chunks_and_resume_give_the_same_bits(corridor, tmp_path):
-    """The off-policy loop through the driver: the chunking of the updates and a resume from a checkpoint do
-    not change a bit of the run (the replay buffer, the targets and the temperature are in the checkpoint)."""
-    env, params = corridor
-    algo = SAC(dataclasses.replace(tiny(SACConfig), total_timesteps=8 * 24, learning_starts=96), env, params)
-    assert algo.num_updates == 24
-
-    def trainer(chunk: int):
-        return training.Trainer(algo, [0, 1], training.LoopConfig(chunk_updates=chunk, eval_every=0, progress=False))
+def test_sac_chunks_and_resume_give_the_same_bits(sac_run, tmp_path):
+    """The off-policy loop through the driver: chunks of 250 updates and a resume from a checkpoint give ``sac_run``'s
+    run in one chunk of 1,000 bit for bit (the replay buffer, the targets and the temperature are in the checkpoint)."""
+    algo, start, whole, _, _, _ = sac_run
+    assert algo.num_updates == 1000
+    in_pieces = training.Trainer(algo, SEEDS, training.LoopConfig(chunk_updates=250, eval_every=0, progress=False))
 
     def same(a, b) -> bool:
         leaves_a, leaves_b = jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)
         return len(leaves_a) == len(leaves_b) and all(
             np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(leaves_a, leaves_b))
 
-    in_pieces = trainer(8)
-    start = in_pieces.init()  # one init program for both trainers (each would compile its own)
-    whole, pieces = training.run(trainer(24), runners=start), training.run(in_pieces, runners=start)
-    assert whole.updates_done == pieces.updates_done == 24 and same(whole.runners, pieces.runners)
+    pieces = training.run(in_pieces, runners=start)  # sac_run's start: one init program for both trainers
+    assert pieces.updates_done == 1000 and same(pieces.runners, whole)
     meta = {"algo": "sac", "config": {"note": "test"}}
-    first = training.run(in_pieces, tmp_path, metadata=meta, stop_after=8)
-    assert first.updates_done == 8 and not first.finished
+    first = training.run(in_pieces, tmp_path, metadata=meta, stop_after=250, runners=start)
+    assert first.updates_done == 250 and not first.finished
     resumed = training.run(in_pieces, tmp_path, metadata=meta, resume=True)
-    assert resumed.finished and same(resumed.runners, whole.runners)
+    assert resumed.finished and same(resumed.runners, whole)

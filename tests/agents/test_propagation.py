@@ -271,12 +271,18 @@ def test_training_sharpens_the_planning_policy_on_held_out_layouts(map_env):
     # 25 updates (measured: greedy 0.987, sampled 0.958 from 0.055, explained variance 0.72 over the last 10).
     config = dataclasses.replace(ppo_config.PROCEDURAL, num_envs=32, total_timesteps=25 * 1024, hidden_sizes=(64, 64))
     algo = ppo.PPO(config, env, params)
-    train = make_train(algo)  # the untrained runner comes out of the training program too (no program of its own)
-    runner, metrics, untrained = jax.jit(lambda key: (*train(key), algo.init(key)))(jax.random.key(0))
+    train = make_train(algo)
+
+    @jax.jit
+    def trained_and_untrained(key):  # the untrained network comes out of the training program too
+        runner, metrics = train(key)
+        # The trained and the untrained network as two "seeds" of one evaluation (one program per policy kind).
+        return metrics, jax.tree.map(lambda *x: jnp.stack(x), algo.network_params(runner),
+                                     algo.network_params(algo.init(key)))
+
+    metrics, network = trained_and_untrained(jax.random.key(0))
     heldout = LayoutSet("heldout", "64 held-out layouts",
                         generate_pool(jax.random.key(EVAL_SEED), 64, env.generator, stream="heldout").layouts)
-    # The trained and the untrained network as two "seeds" of one evaluation (one program per policy kind).
-    network = jax.tree.map(lambda *x: jnp.stack(x), algo.network_params(runner), algo.network_params(untrained))
     common = (algo.greedy_action, network, env, params, [heldout], [0, 1])
     greedy_rows = evaluate_sets(*common, memory=algo.policy_memory())["heldout"]["per_seed"]
     sampled_rows = evaluate_sets(*common, sample_action=algo.sample_action, key=jax.random.key(1),

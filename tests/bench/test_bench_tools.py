@@ -10,6 +10,7 @@ widens the randomization ranges as it says.
 
 from __future__ import annotations
 
+import functools
 import json
 import subprocess
 import sys
@@ -41,9 +42,15 @@ def test_step_profile_splits_over_devices_and_times_a_baseline():
     assert "ratio current/baseline" in done.stdout
 
 
-def test_pibt_profile_refuses_a_baseline_that_plans_other_moves(tmp_path, capsys):
+def test_pibt_profile_refuses_a_baseline_that_plans_other_moves(tmp_path, capsys, monkeypatch):
+    """Both runs profile the same recorded fleet states (same sizes, same seed): the tool's rollout that records
+    them is run once, for the first, and its NumPy arrays handed to the second."""
     sys.path.insert(0, str(ROOT / "bench" / "investigations"))
     from pibt_profile import main as pibt_profile
+
+    import fleet_throughput
+
+    monkeypatch.setattr(fleet_throughput, "recorded_states", functools.cache(fleet_throughput.recorded_states))
 
     source = (ROOT / "wrl_jax/envs/fleet/planners.py").read_text()
     same = tmp_path / "same.py"

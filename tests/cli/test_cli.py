@@ -1,4 +1,8 @@
-"""The shared command line: a tiny training run end to end, resume, evaluation command, bad input."""
+"""The shared command line: a tiny training run end to end, resume, evaluation command, bad input.
+
+:data:`TINY` is ``test_training.py``'s configuration and loop (7 updates, evaluated every 3, chunks of 2; the
+resume chunks by 7, that module's reference run): the two modules share their compiled chunk programs and
+evaluation through the session's compilation cache."""
 
 from __future__ import annotations
 
@@ -20,9 +24,9 @@ from wrl_jax.cli.options import build
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = [
-    "--env", "Warehouse-8x8-v0", "--num-seeds", "2", "--seed", "5", "--total-timesteps", "768",
+    "--env", "Warehouse-8x8-v0", "--num-seeds", "2", "--seed", "5", "--total-timesteps", "896",
     "--num-envs", "8", "--num-steps", "16", "--num-minibatches", "2", "--update-epochs", "1",
-    "--hidden-sizes", "16", "--chunk-updates", "2", "--eval-every", "2", "--no-progress",
+    "--hidden-sizes", "16", "--chunk-updates", "2", "--eval-every", "3", "--no-progress",
 ]  # fmt: skip
 SUMMARY_FIELDS = {
     "algo", "env", "num_seeds", "total_timesteps", "compile_seconds", "train_seconds", "env_steps_per_second", "eval",
@@ -45,7 +49,7 @@ def test_a_run_writes_every_output(finished_run, capsys):
     summary = json.loads((out / "summary.json").read_text())
     assert SUMMARY_FIELDS <= summary.keys() and EVAL_FIELDS <= summary["eval"].keys()
     assert summary["algo"] == "ppo" and summary["env"] == "Warehouse-8x8-v0" and summary["num_seeds"] == 2
-    assert summary["seeds"] == [5, 6] and summary["finished"] and summary["updates_done"] == 6
+    assert summary["seeds"] == [5, 6] and summary["finished"] and summary["updates_done"] == 7
     assert summary["env_steps_per_second"] > 0 and summary["compile_seconds"] > 0
     # FLOP accounting: achieved GFLOP/s against this machine's matmul peak, measured in the run.
     assert 0 < summary["achieved_gflops"] < summary["cpu_peak_gflops"] < 1e5
@@ -54,7 +58,7 @@ def test_a_run_writes_every_output(finished_run, capsys):
     assert len(rows) == 2 * 10 and {r["seed"] for r in rows} == {5, 6}
     assert {"delivered", "steps", "optimal_steps", "return", "collisions", "stage_switch"} <= rows[0].keys()
     assert len(summary["convergence"]["first_optimal_step"]) == 2
-    assert len(metrics_io.read_jsonl(out)) == 6 * 2
+    assert len(metrics_io.read_jsonl(out)) == 7 * 2
     assert "| Task Completion Rate |" in (out / "evaluation.md").read_text()
 
 
@@ -62,10 +66,10 @@ def test_resume_continues_exactly(finished_run, tmp_path):
     out = tmp_path / "split"
     assert cli_train.main("ppo", [*TINY, "--out", str(out), "--stop-after", "2"]) == 0
     assert not json.loads((out / "summary.json").read_text())["finished"]
-    # Only --resume --out: everything else comes from the checkpoint; a smaller chunk changes nothing.
-    assert cli_train.main("ppo", ["--resume", "--out", str(out), "--no-progress", "--chunk-updates", "1"]) == 0
+    # Only --resume --out: everything else comes from the checkpoint; another chunk size changes nothing.
+    assert cli_train.main("ppo", ["--resume", "--out", str(out), "--no-progress", "--chunk-updates", "7"]) == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["finished"] and summary["updates_done"] == 6
+    assert summary["finished"] and summary["updates_done"] == 7
     a = checkpoint.serialization.msgpack_restore((finished_run / "checkpoint.msgpack").read_bytes())["leaves"]
     b = checkpoint.serialization.msgpack_restore((out / "checkpoint.msgpack").read_bytes())["leaves"]
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)

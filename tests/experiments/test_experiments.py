@@ -1,5 +1,9 @@
 """Tests of wrl_jax.experiments: the CI helper, per-seed metrics, segmented training,
-the stage-blind observation, and every experiment's --quick path end to end."""
+the stage-blind observation, and every experiment's --quick path end to end.
+
+The quick runs share compiled training programs (same setting, seed batch and evaluation cadence):
+table3's PPO 12x12 is media's and scale's (scale runs the 12x12 map for it), failure_modes' DQN 8x8
+pair of variants is media's. DQN 8x8's quick budget is checked on failure_modes' table (table3 runs PPO)."""
 
 from __future__ import annotations
 
@@ -13,7 +17,7 @@ import pytest
 
 from wrl_jax.envs.warehouse import evaluation
 from wrl_jax.experiments import common, failure_modes, forgetting, media, scale, sensitivity, table3
-from wrl_jax.experiments.configs import ENV_8, Setting, build
+from wrl_jax.experiments.configs import ENV_8, ENV_12, Setting, build
 from wrl_jax.core.registry import make
 
 
@@ -123,10 +127,10 @@ def test_segments_really_swap_the_item_and_keep_learning_state():
     kernel_after, kernel_before = jax.tree.leaves(runners.params)[0][2], jax.tree.leaves(before.params)[0][2]
     assert not np.allclose(np.asarray(kernel_after), np.asarray(kernel_before))
 
-    cleared = forgetting.make_segment_fn(algo, full, segment_updates=1)(
-        runners, common.stack_trees([full] * 4), jnp.array([False, False, True, True]), jnp.int32(16))[0]
-    assert np.all(np.asarray(cleared.buffer.size[2:]) == 4)  # emptied, then one vector step of 4 transitions
-    assert np.all(np.asarray(cleared.buffer.size[:2]) == np.asarray(runners.buffer.size[:2]) + 4)
+    # The same compiled segment (8 updates of one vector step of 4 transitions each), clearing runners 2-3 first.
+    cleared = segment(runners, common.stack_trees([full] * 4), jnp.array([False, False, True, True]), jnp.int32(16))[0]
+    assert np.all(np.asarray(cleared.buffer.size[2:]) == 8 * 4)  # emptied, then the segment's 32 transitions
+    assert np.all(np.asarray(cleared.buffer.size[:2]) == np.asarray(runners.buffer.size[:2]) + 8 * 4)
 
 
 # ------------------------------------------------------------- stage-blind env
@@ -149,18 +153,19 @@ def _read(path):
 
 
 def test_table3_quick_writes_files(tmp_path):
-    assert table3.main(["--quick", "--presets", "default", "--algos", "dqn", "--out", str(tmp_path)]) == 0
+    assert table3.main(["--quick", "--presets", "default", "--algos", "ppo", "--out", str(tmp_path)]) == 0
     for name in ("table3.md", "table3.json", "table3.png"):
         assert (tmp_path / name).stat().st_size > 0
     data = _read(tmp_path / "table3.json")
-    entry = data["settings"]["DQN 8x8 default"]
-    assert data["quick"] and entry["seeds"] == [0, 1] and entry["env_steps_per_seed"] == 3_200
+    entry = data["settings"]["PPO 12x12 default"]
+    assert data["quick"] and entry["seeds"] == [0, 1] and entry["env_steps_per_seed"] == 4_096
     assert "Task Completion Rate" in (tmp_path / "table3.md").read_text()
 
 
 def test_failure_modes_quick_writes_files(tmp_path):
     assert failure_modes.main(["--quick", "--modes", "collision", "forgetting", "--out", str(tmp_path)]) == 0
     data = _read(tmp_path / "table4.json")
+    assert data["quick"] and data["env_steps_per_seed"] == 3_200  # DQN 8x8 default's quick budget
     expected = {"fixed (final setting)", "collision bug", "collision bug, evaluated without the bug"}
     assert set(data["variants"]) == expected
     assert data["forgetting"]["variants"] == list(forgetting.VARIANTS)
@@ -177,9 +182,9 @@ def test_sensitivity_quick_writes_files(tmp_path):
 
 
 def test_scale_quick_writes_files(tmp_path):
-    assert scale.main(["--quick", "--envs", ENV_8, "--out", str(tmp_path)]) == 0
+    assert scale.main(["--quick", "--envs", ENV_12, "--out", str(tmp_path)]) == 0
     data = _read(tmp_path / "scale.json")
-    assert set(data["results"]) == {"DQN 8x8 default", "PPO 8x8 default"}
+    assert set(data["results"]) == {"DQN 12x12 default", "PPO 12x12 default"}
     assert (tmp_path / "scale.png").stat().st_size > 0
 
 

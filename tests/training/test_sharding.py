@@ -44,17 +44,18 @@ from wrl_jax import training
 from wrl_jax.training import sharding
 from wrl_jax.agents.dqn import DQN
 from wrl_jax.agents.dqn_config import DQNConfig
-from wrl_jax.agents.base import make_train_seeds
 from wrl_jax.agents.ppo import PPO
 from wrl_jax.agents.ppo_config import PPOConfig
 
 ENV = "Warehouse-8x8-v0"
-env, params = wrl_jax.make(ENV)
+SHAPING = 1.0  # not the environment's default: the sweep below must apply it
+env, params = wrl_jax.make(ENV, shaping_coef=SHAPING)
 TINY_PPO = PPOConfig(num_envs=8, num_steps=16, num_minibatches=2, update_epochs=1, hidden_sizes=(16,),
-                     total_timesteps=8 * 16 * 4)
+                     total_timesteps=8 * 16 * 4, learning_rate=0.03)
 TINY_DQN = DQNConfig(num_envs=4, train_freq=1, batch_size=16, hidden_sizes=(16,), buffer_size=256,
                      learning_starts=16, target_update_interval=8, total_timesteps=4 * 24)
 LOOP = training.LoopConfig(chunk_updates=2, eval_every=0, progress=False)
+EVAL_LOOP = training.LoopConfig(chunk_updates=2, eval_every=2, progress=False)
 out = {"devices": len(jax.devices())}
 
 def leaves(tree):
@@ -70,48 +71,50 @@ def max_diff(a, b):
 SEED_AXIS = """
 algo = PPO(TINY_PPO, env, params)
 seeds = [0, 1, 2, 3]
-sharded = training.run(sharding.ShardedTrainer(algo, seeds, LOOP, sharding.make_mesh(2, 1)))
+sharded = training.run(sharding.ShardedTrainer(algo, seeds, EVAL_LOOP, sharding.make_mesh(2, 1)))
 lay = sharded.runners.params
 out["param_spec"] = list(lay.sharding.spec)
 out["param_shard_rows"] = sorted(s.data.shape[0] for s in lay.addressable_shards)
 out["param_shard_devices"] = len({s.device for s in lay.addressable_shards})
-# One device: make_train_seeds, the same updates as the chunked driver bit for bit (tests/training/test_training.py),
-# compiled once per batch size.
-train = jax.jit(make_train_seeds(algo))
-halves = [train(training.seed_keys(part)) for part in ([0, 1], [2, 3])]
-joined = [np.concatenate([a, b]) for a, b in zip(leaves(halves[0][0]), leaves(halves[1][0]))]
+# One device: the unsharded Trainer (make_train_seeds' updates bit for bit, tests/training/test_training.py),
+# one program for both halves of 2 seeds; the first half is also the sweep's point below.
+halves = [training.run(training.Trainer(algo, part, EVAL_LOOP)) for part in ([0, 1], [2, 3])]
+joined = [np.concatenate([a, b]) for a, b in zip(leaves(halves[0].runners), leaves(halves[1].runners))]
 out["seed_sharded_equals_halves_bitwise"] = bitwise(leaves(sharded.runners), joined)
-# Metric rows (one per update and seed): the same numbers as the halves' per-update metrics.
-metrics = {k: np.concatenate([np.asarray(halves[0][1][k]), np.asarray(halves[1][1][k])]) for k in halves[0][1]}
+# Metric rows (one per update and seed, the in-loop evaluations' included): the halves' rows, every value.
+half_rows = {(row["seed"], row["update"]): row for half in halves for row in half.rows}
 out["rows"] = len(sharded.rows)
-out["rows_equal_halves_bitwise"] = all(
-    np.array_equal(row[k], metrics[k][seeds.index(row["seed"]), row["update"] - 1])
-    for row in sharded.rows for k in metrics)
+out["rows_equal_halves_bitwise"] = len(half_rows) == len(sharded.rows) and all(
+    row.keys() == half_rows[row["seed"], row["update"]].keys()
+    and all(np.array_equal(v, half_rows[row["seed"], row["update"]][k], equal_nan=True) for k, v in row.items())
+    for row in sharded.rows)
 # Environment axis split over the 2 devices (each device: all 4 seeds, half of each seed's envs), against the
 # single-device runs of the same seeds.
 env_sharded = training.run(sharding.ShardedTrainer(algo, seeds, LOOP, sharding.make_mesh(2, 2)))
 out["env_obs_spec"] = list(env_sharded.runners.obs.sharding.spec)
 out["env_obs_shard_shape"] = list(env_sharded.runners.obs.addressable_shards[0].data.shape)
 out["env_sharded_vs_one_device_max_diff"] = max_diff(leaves(env_sharded.runners), joined)
-out["env_sharded_env_state_equal"] = bitwise(leaves(env_sharded.runners.env_state),
-                                             [np.concatenate([a, b]) for a, b in zip(leaves(halves[0][0].env_state),
-                                                                                     leaves(halves[1][0].env_state))])
+out["env_sharded_env_state_equal"] = bitwise(
+    leaves(env_sharded.runners.env_state),
+    [np.concatenate([a, b]) for a, b in zip(*(leaves(half.runners.env_state) for half in halves))])
 """
 
 SWEEP_AXIS = """
 from wrl_jax.training import sweep as sw
-# A PPO sweep of 2 points x 2 seeds on 2 devices: each device trains one point.
-grid = {"learning_rate": [0.003, 0.03], "shaping_coef": [1.0]}
-sweep = sw.Sweep("ppo", TINY_PPO, ENV, {}, grid, seeds=[0, 1])
-loop = training.LoopConfig(chunk_updates=2, eval_every=2, progress=False)
-sharded = sw.run_sweep(sweep, loop, mesh=sharding.make_mesh(2, 1))
+# A PPO sweep of 2 points x 2 seeds on 2 devices: each device trains one point. The sweep's base learning
+# rate and shaping are the defaults, so the point on the second device differs from its base in both.
+grid = {"learning_rate": [0.003, TINY_PPO.learning_rate], "shaping_coef": [SHAPING]}
+base = PPOConfig(**{**TINY_PPO.__dict__, "learning_rate": PPOConfig.learning_rate})
+sweep = sw.Sweep("ppo", base, ENV, {}, grid, seeds=[0, 1])
+sharded = sw.run_sweep(sweep, EVAL_LOOP, mesh=sharding.make_mesh(2, 1))
 out["sweep_spec"] = list(sharded.run.runners.hyper.learning_rate.sharding.spec)
-# ... which is each point trained on its own with its own config, on one device, bit for bit.
+# ... which is each point trained on its own with its own config, on one device, bit for bit: the point on
+# the second device is TINY_PPO on the env with SHAPING, seeds 0 and 1, the seed axis's first half above.
 equal, tables = [], []
-for g, point in list(enumerate(sweep.points))[1:]:  # the point on the second device
-    config = TINY_PPO.__class__(**{**TINY_PPO.__dict__, "learning_rate": point["learning_rate"]})
-    env_g, params_g = wrl_jax.make(ENV, shaping_coef=point["shaping_coef"])
-    alone = training.run(training.Trainer(PPO(config, env_g, params_g), [0, 1], loop))
+for g, point in list(enumerate(sweep.points))[1:]:
+    config = PPOConfig(**{**base.__dict__, "learning_rate": point["learning_rate"]})
+    assert config == TINY_PPO and point["shaping_coef"] == SHAPING, point
+    alone = halves[0]
     equal.append(bitwise([x[2 * g: 2 * g + 2] for x in leaves(sharded.run.runners)], leaves(alone.runners)))
     evals = training.final_evaluation(None, alone)
     tables.append(bitwise([x[2 * g: 2 * g + 2] for x in leaves(training.final_evaluation(None, sharded.run))],
@@ -139,10 +142,13 @@ for name, args in {"seeds": (3, 8, mesh), "envs": (2, 7, sharding.make_mesh(2, 2
 out["errors"] = errors
 """
 
-CLI_ARGS = ["--env", "Warehouse-8x8-v0", "--num-seeds", "2", "--total-timesteps", "512", "--num-envs", "8",
+CLI_ARGS = ["--env", "Warehouse-8x8-v0", "--num-seeds", "4", "--total-timesteps", "512", "--num-envs", "8",
             "--num-steps", "16", "--num-minibatches", "2", "--update-epochs", "1", "--hidden-sizes", "16",
-            "--eval-every", "2", "--no-progress", "--no-plot"]
-"""The tiny PPO run of the command-line check (4 updates, an evaluation every 2)."""
+            "--learning-rate", "0.03", "--shaping-coef", "1.0", "--chunk-updates", "2", "--eval-every", "2",
+            "--no-progress", "--no-plot"]
+"""The command-line check's run: the fixture's seed-axis run (TINY_PPO on 4 seeds, 4 updates in chunks of 2, an
+evaluation every 2), so that its programs come from the session's compilation cache instead of being compiled
+again."""
 
 
 def run_with_two_devices(*bodies: str) -> dict:
@@ -241,13 +247,18 @@ def test_two_process_run_equals_one_process_with_two_devices(tmp_path):
     before JAX starts (wrl_jax/cli/machine.py).
 
     The single-process run is a process of its own, not a call in the fixture's: run there, after the other
-    checks' programs, its floats differed from the hosts' in the last bits (seen 2026-12-02, not explained)."""
+    checks' programs, its floats differed from the hosts' in the last bits (seen 2026-12-02, not explained).
+
+    Compile time: the single process's programs are the fixture's seed-axis programs (``CLI_ARGS``), which the
+    session's compilation cache serves. The hosts' 2-process programs are keyed apart and compiled by each host
+    (``JAX_SHARE_BINARY_BETWEEN_HOSTS``, host 0 handing host 1 its executables, hangs in Gloo's set-up)."""
     args = [sys.executable, str(ROOT / "train_ppo.py"), *CLI_ARGS]
     base = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     base["PYTHONPATH"] = str(ROOT) + os.pathsep + base.get("PYTHONPATH", "")
     port = _free_port()
-    launches = [({**base, "WRL_COORDINATOR": f"localhost:{port}", "WRL_NUM_PROCESSES": "2",
-                  "WRL_PROCESS_ID": str(pid)}, ["--distributed", "--out", str(tmp_path / f"host{pid}")]) for pid in range(2)]
+    hosts = {**base, "WRL_COORDINATOR": f"localhost:{port}", "WRL_NUM_PROCESSES": "2"}
+    launches = [({**hosts, "WRL_PROCESS_ID": str(pid)}, ["--distributed", "--out", str(tmp_path / f"host{pid}")])
+                for pid in range(2)]
     # No XLA_FLAGS device count for the single process: ``--devices 2`` itself splits the CPU in two.
     launches.append((base, ["--devices", "2", "--out", str(tmp_path / "single")]))
     processes = [subprocess.Popen(args + extra, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,

@@ -243,17 +243,21 @@ def test_fleet_sweep_trains_each_point_with_its_block_penalty(tmp_path):
 
 
 def test_procedural_fields_are_judged_by_its_params():
-    """Reward constants of the procedural warehouse are params leaves (traced); its pool size fixes shapes."""
+    """Reward constants of the procedural warehouse are params leaves (traced); its pool size fixes shapes.
+
+    Pools of 16 layouts, as ``test_cli.py``'s procedural command: one compiled generator for both modules (and
+    every ``make`` the checks and their messages call generates 16 layouts, not the default 1,024)."""
     env, config = "Procedural-Warehouse-v0", dataclasses.replace(TINY_PPO, obs_encoding="raw")
+    pool = {"pool_size": 16}
     with pytest.raises(sw.StaticFieldError, match="'pool_size' is static"):
-        sw.Sweep("ppo", config, env, {}, {"pool_size": [1024, 512]}, seeds=[0])
-    sweep = sw.Sweep("ppo", config, env, {}, {"shaping_coef": [0.0, 1.0], "step_penalty": [-1.0]}, seeds=[0, 1])
+        sw.Sweep("ppo", config, env, pool, {"pool_size": [16, 8]}, seeds=[0])
+    sweep = sw.Sweep("ppo", config, env, pool, {"shaping_coef": [0.0, 1.0], "step_penalty": [-1.0]}, seeds=[0, 1])
     assert sweep.env_fields == ["shaping_coef", "step_penalty"]
     _, params = sweep.batched_inputs()
     assert np.asarray(params.shaping_coef).tolist() == [0.0, 0.0, 1.0, 1.0]
     assert np.asarray(params.step_penalty).tolist() == [-1.0] * 4
     with pytest.raises(ValueError, match="unknown sweep field 'pool_sise'"):
-        sw.Sweep("ppo", config, env, {}, {"pool_sise": [8]}, seeds=[0])
+        sw.Sweep("ppo", config, env, pool, {"pool_sise": [8]}, seeds=[0])
 
 
 def test_a_family_without_sweep_columns_gets_its_numbers_and_none_for_missing_training_metrics():

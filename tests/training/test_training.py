@@ -2,8 +2,10 @@
 
 Compiled programs are the cost here, so the tests share them: ``reference`` (one chunk of 7 updates) and
 ``chunked`` (chunks of 2, the same seeds) are the module's two trainers; the chunk-size, resume and TensorBoard
-tests all run ``chunked`` (one compiled chunk program), and the ``log_every`` check's trainer differs from it
-only in ``log_every``, which the chunk program does not read (same program: the persistent cache serves it)."""
+tests all run ``chunked`` (one compiled chunk program), and so does the ``log_every`` check, whose trainer differs
+from it only in ``log_every`` and only makes the rows.
+:data:`TINY` and the loop settings are ``test_cli.py``'s command's (its run chunks by 2, its resume by 7), so
+the two modules compile these chunk programs and the evaluation once between them."""
 
 from __future__ import annotations
 
@@ -23,9 +25,10 @@ from wrl_jax.agents.ppo import PPO
 from wrl_jax.agents.ppo_config import PPOConfig
 from wrl_jax.envs.warehouse.layout import MOVES
 
-# A tiny PPO (compiles in seconds, runs in milliseconds): the driver is what is tested here.
+# A tiny PPO (compiles in seconds, runs in milliseconds): the driver is what is tested here. The configuration
+# of test_cli.py's TINY command (same programs).
 TINY = PPOConfig(
-    num_envs=8, num_steps=16, num_minibatches=2, update_epochs=2, hidden_sizes=(16,), total_timesteps=8 * 16 * 7
+    num_envs=8, num_steps=16, num_minibatches=2, update_epochs=1, hidden_sizes=(16,), total_timesteps=8 * 16 * 7
 )
 SEEDS = [3, 4]
 
@@ -125,15 +128,16 @@ def test_metric_rows_and_evaluations(algo, reference):
     assert leaves_equal(final, trainer.evaluate(ref.runners))
 
 
-def test_log_every_aggregates_sums_and_means(algo):
+def test_log_every_aggregates_sums_and_means(algo, chunked):
     """Updates logged every 2: one row per 2 updates and seed, sums and means of its 2 updates. ``chunked``'s
-    settings but for ``log_every`` (which only :meth:`Trainer.metric_rows` reads): its program. The two chunks'
-    metrics are also read as one chunk of 4, so a row per chunk instead of per ``log_every`` would fail."""
+    settings but for ``log_every``, which only :meth:`Trainer.metric_rows` reads: ``chunked`` runs the chunks (its
+    compiled program), this trainer makes the rows. The two chunks' metrics are also read as one chunk of 4, so a
+    row per chunk instead of per ``log_every`` would fail."""
     trainer = training.Trainer(algo, SEEDS, training.LoopConfig(chunk_updates=2, log_every=2, eval_every=3,
                                                                 progress=False))
-    runners = trainer.init()
-    runners, first, latest = trainer.run_chunk(runners, 0)
-    _, second, _ = trainer.run_chunk(runners, 2, latest)
+    runners = chunked.init()
+    runners, first, latest = chunked.run_chunk(runners, 0)
+    _, second, _ = chunked.run_chunk(runners, 2, latest)
     rows = [row for row in trainer.metric_rows(first, 0) + trainer.metric_rows(second, 2) if row["seed"] == SEEDS[0]]
     assert [row["update"] for row in rows] == [2, 4]
     assert rows[0]["episodes"] == pytest.approx(first["episodes"][:2, 0].sum())

@@ -266,8 +266,9 @@ def make_train(algo: Algorithm, num_updates: int | None = None) -> Callable[...,
     fuses the initialisation arithmetic into the first update, and on CPUs
     with FMA/AVX-512 the contracted multiply-adds round differently from the
     chunked driver (which initialises in its own program), so the two would
-    differ in the last bits. With it, this one program equals the driver bit
-    for bit (``tests/training/test_training.py``).
+    differ in the last bits. With it, PPO's one program equals the driver bit
+    for bit (``tests/training/test_training.py``); the off-policy learners' two
+    programs still fuse differently and agree to float rounding (about 1e-7).
     """
     num_updates = algo.num_updates if num_updates is None else int(num_updates)
 

@@ -127,7 +127,9 @@ def run_groups(modes: list[str], seeds: list[int], quick: bool):
             # The bug-trained policies, deployed where shelves really block (the fixed environment).
             fixed = make(ENV_8)[1]
             bug = res["collision bug"]
-            episodes = evaluation.evaluate_seeds(algo.greedy_action, bug.network_params, env, fixed)
+            # One program (called eagerly, the evaluation would compile its operations one by one).
+            episodes = jax.jit(lambda p: evaluation.evaluate_seeds(algo.greedy_action, p, env, fixed))(
+                bug.network_params)
             label = "collision bug, evaluated without the bug"
             results[label] = common.VariantResult(label, bug.seeds, episodes, common.per_seed_metrics(episodes),
                                                   [None] * len(seeds), bug.curve_steps,

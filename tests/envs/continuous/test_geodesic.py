@@ -4,7 +4,8 @@ around the shelves.
 The fields must be the length of the way around the shelves (checked against the exact any-angle
 lengths of the yardstick), the environment must be the contract's in everything but the reward, and the
 reward must differ from the contract's by exactly the change of potential (so a whole episode's shaping
-telescopes to the distance covered).
+telescopes to the distance covered). The route-following controller's evaluation, read against thresholds,
+compiles at LLVM level 0 (``fast_compile``); the programs whose results are compared bit for bit at the session's.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import fast_compile
 
 from wrl_jax.envs.continuous import geodesic
 from wrl_jax.envs.continuous import shortest_path as spath
@@ -197,7 +199,7 @@ def test_a_controller_that_steers_along_the_route_delivers_every_item_of_12x12(s
 
     routed, routed_params = make_named("12x12", shaping="geodesic", observe_route=True)
     follow = follow_route(routed.obs_size - geodesic.ROUTE_FEATURES)
-    result = jax.jit(lambda p: evaluation.evaluate_episodes(follow, routed, p))(routed_params)
+    result = fast_compile.jit(lambda p: evaluation.evaluate_episodes(follow, routed, p))(routed_params)
     valid = np.asarray(result.valid)
     assert np.asarray(result.delivered)[valid].all()
     assert np.asarray(result.collisions)[valid].sum() == 0

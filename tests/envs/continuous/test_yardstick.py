@@ -4,6 +4,8 @@ The bound is checked against geometry worked by hand, against the straight line 
 brute-force Dijkstra on a fine 16-connected lattice whose edges are all collision-free (a real path, so
 never shorter than the true one). The controller must deliver every item of both study maps without a
 collision, never beat the bound a policy cannot beat, wait for a moving obstacle ahead and then step aside.
+The controller's programs compile at LLVM level 0 (``fast_compile``): their results are read against thresholds
+and bounds, never compared bit for bit.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
+import fast_compile
 
 from wrl_jax.envs.continuous import shortest_path as spath
 from wrl_jax.envs.continuous import yardstick
@@ -27,6 +30,8 @@ from wrl_jax.envs.warehouse.maps import WAREHOUSE_8X8, WAREHOUSE_12X12
 
 R = 0.3
 CONFIG = PursuitConfig()
+pursuit_episodes = fast_compile.fast(yardstick.pursuit_episodes, static_argnums=(0, 3, 5, 6))
+"""The package's :func:`yardstick.pursuit_episodes` (the same static arguments) at LLVM level 0."""
 
 
 def centre(cell) -> np.ndarray:
@@ -172,7 +177,7 @@ def static_run(request):
     env, params = make_continuous(request.param)
     plan, bounds = make_plan(params, CONFIG), yardstick.item_bounds(params)
     episodes = int(params.num_items)  # one per item
-    results = yardstick.pursuit_episodes(env, params, plan, CONFIG, jax.random.key(0), episodes, int(params.max_steps))
+    results = pursuit_episodes(env, params, plan, CONFIG, jax.random.key(0), episodes, int(params.max_steps))
     return env, params, plan, bounds, jax.device_get(results)
 
 
@@ -192,7 +197,7 @@ def test_pursuit_delivers_every_item_of_the_study_maps_without_a_collision(stati
 def test_randomized_pursuit_runs_and_delivers(static_run):
     env, params, plan, _, _ = static_run
     params = params.replace(randomize=jnp.bool_(True))  # the same program: randomization is a parameter
-    results = yardstick.pursuit_episodes(env, params, plan, CONFIG, jax.random.key(1), int(params.num_items),
+    results = pursuit_episodes(env, params, plan, CONFIG, jax.random.key(1), int(params.num_items),
                                          int(params.max_steps))
     assert np.mean(np.asarray(results["delivered_at"]) > 0) >= 0.9
 
@@ -213,7 +218,7 @@ def scripted(pos, item, obstacles) -> ContinuousState:
 
 def test_pursuit_waits_for_an_obstacle_ahead_only_and_then_steps_aside(dynamic):
     env, params, plan = dynamic
-    act = jax.jit(lambda control, state: pursuit_act(plan, control, state, params, CONFIG))
+    act = fast_compile.jit(lambda control, state: pursuit_act(plan, control, state, params, CONFIG))
     far = jnp.array([[8.5, 8.5], [9.5, 9.5], [10.5, 10.5], [11.5, 11.5]], jnp.float32)
     # Item 0 is at (4.5, 0.5): its leg runs straight along the bottom row; the robot, 2 m along it, faces it.
     state = scripted([2.5, 0.5], plan.items[0], far)
@@ -235,7 +240,7 @@ def test_pursuit_waits_for_an_obstacle_ahead_only_and_then_steps_aside(dynamic):
     assert int(control.escape_left) == CONFIG.escape_steps
     aside = np.asarray(control.escape_point)
     assert abs(aside[1] - 0.5) >= 0.6 and np.hypot(*(aside - [3.5, 0.5])) >= 0.6, aside
-    transition = jax.jit(lambda key, state, action: env.transition(key, state, action, params))
+    transition = fast_compile.jit(lambda key, state, action: env.transition(key, state, action, params))
     for _ in range(10):  # the obstacle pinned where it waits
         action, control = act(control, state)
         _, state, _, _, _, info = transition(jax.random.key(0), state, action)
@@ -258,7 +263,7 @@ def test_a_step_away_from_a_touching_obstacle_is_never_refused():
 def test_dynamic_pursuit_delivers_without_touching_an_obstacle(dynamic):
     env, params, plan = dynamic
     report = yardstick.summarize(
-        jax.device_get(yardstick.pursuit_episodes(env, params, plan, CONFIG, jax.random.key(3), 20, 500)),
+        jax.device_get(pursuit_episodes(env, params, plan, CONFIG, jax.random.key(3), 20, 500)),
         yardstick.item_bounds(params), int(params.num_items))
     assert report["collisions_per_episode"] == 0.0
     assert report["delivery_rate"] >= 0.85

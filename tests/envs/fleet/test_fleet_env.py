@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import fast_compile
 
 import wrl_jax.envs  # noqa: F401  (registers the built-in names)
 from wrl_jax.core import random as core_random
@@ -187,7 +188,8 @@ def test_block_causes_name_the_first_reason_of_each_block(pos, proposal, expecte
     from wrl_jax.envs.fleet.metrics import BLOCK_CAUSES, block_causes
 
     _, blocked = resolve_both(pos, proposal)
-    causes = np.asarray(block_causes(jnp.asarray(pos), jnp.asarray(proposal), jnp.asarray(blocked)))
+    # One program per robot count (eagerly, each operation compiles on its own); integer logic: LLVM level 0.
+    causes = np.asarray(fast_compile.jit(block_causes)(np.asarray(pos), np.asarray(proposal), np.asarray(blocked)))
     assert causes.shape == (len(pos), len(BLOCK_CAUSES)) and (causes.sum(axis=1) == np.asarray(blocked)).all()
     assert [int(np.argmax(row)) if row.any() else None for row in causes] == expected
 
@@ -267,6 +269,14 @@ def feature_rollout(env, params):
     return jax.lax.scan(step, state, jax.random.split(jax.random.key(5), 64))[1]
 
 
+@functools.partial(jax.jit, static_argnums=0)
+def reset_and_observe(env, params):
+    """A reset (:func:`feature_rollout`'s key) and ``get_obs`` of its state, in one program (eagerly, each of their
+    operations would compile on its own)."""
+    obs, state = env.reset(jax.random.key(4), params)
+    return obs, state, env.get_obs(state, params)
+
+
 def test_priority_channel_shows_the_robots_with_a_lower_index():
     """``observe_priority``: FLEET_SPEC's observation unchanged, then a channel of the lower-index robots in view,
     on the vmapped step (compact masks, auto-reset included) and on ``get_obs``; it changes nothing else."""
@@ -293,8 +303,8 @@ def test_priority_channel_shows_the_robots_with_a_lower_index():
     assert expected.sum() > 20 and not priority[:, 0].any()
     robots = obs[..., 5 + 25:5 + 50].reshape(64, 4, 5, 5)
     assert (robots >= priority).all() and (robots > priority).any()  # a subset of the robot channel
-    first_obs, first_state = env.reset(jax.random.key(4), params)
-    np.testing.assert_array_equal(np.asarray(env.get_obs(first_state, params)), np.asarray(first_obs))
+    first_obs, _, observed = reset_and_observe(env, params)
+    np.testing.assert_array_equal(np.asarray(observed), np.asarray(first_obs))
     with pytest.raises(ValueError, match="observe_priority needs the bit-mask window"):
         make_fleet(maps.FLEET_12X12, 4, view_radius=3, observe_priority=True)
 
@@ -317,9 +327,9 @@ def test_last_action_memory_is_the_previous_action_and_its_block():
     expected = np.where(truncated[:, None, None], 0.0, expected_final)  # a new shift remembers nothing
     np.testing.assert_array_equal(obs[..., plain_env.obs_size:], expected)
     assert truncated.sum() == 3 and blocked.sum() > 0  # auto-resets and blocks happened in the rollout
-    first_obs, first_state = env.reset(jax.random.key(4), params)
+    first_obs, first_state, observed = reset_and_observe(env, params)
     assert not np.asarray(first_obs)[:, plain_env.obs_size:].any()
-    np.testing.assert_array_equal(np.asarray(env.get_obs(first_state, params)), np.asarray(first_obs))
+    np.testing.assert_array_equal(np.asarray(observed), np.asarray(first_obs))
     move = jnp.array([3, 7, 0, 4], jnp.int32)  # 7 is outside 0..4: inside jit it waits, and is remembered as a wait
     obs, state, *_ = jax.jit(env.transition)(jax.random.key(6), first_state, move, params)
     np.testing.assert_array_equal(np.asarray(state.last_action), [3, 4, 0, 4])
@@ -464,8 +474,7 @@ def test_padding_never_changes_a_rollout():
 def test_reference_state_roundtrip_matches_jax_reset():
     env, params = make_fleet(maps.FLEET_12X12, 3)
     key = jax.random.key(4)
-    obs, state = jax.jit(env.reset)(key)
-    tasks = draw_tasks(key, params, 3)
+    (obs, state), tasks = jax.jit(lambda k: (env.reset(k), draw_tasks(k, params, 3)))(key)  # one program
     ref_obs, ref_state = FleetReference.from_params(params).reset(np.asarray(tasks.item), np.asarray(tasks.station))
     assert isinstance(ref_state, RefState)
     np.testing.assert_array_equal(np.asarray(obs).view(np.uint32), ref_obs.view(np.uint32))
@@ -515,7 +524,8 @@ def test_fast_draws_are_jax_random_bits():
         words = (jax.random.bits(key, (16,), jnp.uint32), core_random.random_words(key, 16))
         return [jax.random.key_data(k) for k in (split[0], split[1], *fast)], words
 
-    (split0, split1, fast0, fast1), (bits, fast_bits) = jax.device_get(jax.jit(jax.vmap(both))(keys))
+    # Integer bits only: LLVM level 0 (tests/fast_compile.py) computes them as the session's level does.
+    (split0, split1, fast0, fast1), (bits, fast_bits) = jax.device_get(fast_compile.jit(jax.vmap(both))(keys))
     np.testing.assert_array_equal(split0, fast0)
     np.testing.assert_array_equal(split1, fast1)
     np.testing.assert_array_equal(bits, fast_bits)
@@ -583,6 +593,7 @@ def test_mask_rounds_equal_the_table_rounds(num_robots):
         return (fleet_conflicts._mover_rounds(movers, same_q, onto, swap),
                 fleet_conflicts._mover_rounds_tables(movers, same_q & lower, onto, swap))
 
-    masks, tables = jax.device_get(jax.jit(jax.vmap(both))(pos, proposal))
+    # Boolean and integer logic only: compiled at LLVM level 0 (tests/fast_compile.py), same results.
+    masks, tables = jax.device_get(fast_compile.jit(jax.vmap(both))(pos, proposal))
     np.testing.assert_array_equal(masks, tables)
     assert (masks != np.any(np.asarray(proposal) != np.asarray(pos), axis=2)).any()  # some robots were blocked

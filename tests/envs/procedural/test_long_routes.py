@@ -3,12 +3,17 @@
 One batch per family (and one of the training mixture, the yardstick) is generated under ``jit`` + ``vmap``
 once for the module; distances come from a NumPy BFS (a batched one here, checked against
 ``wrl_jax.envs.warehouse.layout.bfs_distances``), independent of the JAX flood fill.
+
+Every batch and every family's drawn floors come out of ONE program (``_program``), compiled at LLVM level 0
+(``fast_compile``: generation is integer logic; four programs at the session's level cost twice as much to
+compile); the same-key test runs that program again.
 """
 
 from __future__ import annotations
 
 from types import SimpleNamespace
 
+import fast_compile
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -29,8 +34,26 @@ SHORT_ROUTE = 43
 """About the longest start-to-target distance of the training families at 16x16."""
 
 
-_batch = jax.jit(lambda keys, config: jax.vmap(gen.generate_with_attempts, in_axes=(0, None))(keys, config),
-                 static_argnames="config")
+def _floors(key, family):
+    """256 floors of ``family`` as drawn, before placement: ``(256, 16, 16)`` bool, off-grid cells blocked."""
+    config = gen.GeneratorConfig(family=family)
+    headers = jax.random.bits(key, (256, HEADER_WORDS), jnp.uint32)
+    words = jax.vmap(lambda h: cell_words(h, config.max_shape)[0])(headers)
+    shelves, height, width = jax.vmap(lambda h, w: gen.FLOORS[family](h, w, config))(headers, words)
+    return shelves | ~jax.vmap(lambda h, w: gen.in_bounds_mask(h, w, config.max_shape))(height, width)
+
+
+@fast_compile.jit
+def _program(keys, floor_key):
+    """``({family: (layouts, attempts)}, {long family: floors})``: a batch per family (the mixture too), one
+    layout per key, and each long family's drawn floors."""
+    batches = {family: jax.vmap(gen.generate_with_attempts, in_axes=(0, None))(keys, gen.GeneratorConfig(family=family))
+               for family in ("mixture", *LONG)}
+    return batches, {family: _floors(floor_key, family) for family in LONG}
+
+
+def _run():
+    return jax.tree.map(np.asarray, _program(jax.random.split(jax.random.key(33), NUM_LAYOUTS), jax.random.key(5)))
 
 
 def numpy_bfs(blocked: np.ndarray, sources: np.ndarray) -> np.ndarray:
@@ -54,15 +77,16 @@ def numpy_bfs(blocked: np.ndarray, sources: np.ndarray) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def batches():
+def generated():
+    """``_program``'s outputs as NumPy."""
+    return _run()
+
+
+@pytest.fixture(scope="module")
+def batches(generated):
     """``{family: (layouts as NumPy, attempts, from_start, from_goal)}`` for the long families and the mixture."""
-    keys = jax.random.split(jax.random.key(33), NUM_LAYOUTS)
-    out = {}
-    for family in ("mixture", *LONG):
-        layouts, attempts = jax.tree.map(np.asarray, _batch(keys, gen.GeneratorConfig(family=family)))
-        out[family] = (layouts, attempts, numpy_bfs(layouts.blocked, layouts.start),
-                       numpy_bfs(layouts.blocked, layouts.goal))
-    return out
+    return {family: (layouts, attempts, numpy_bfs(layouts.blocked, layouts.start),
+                     numpy_bfs(layouts.blocked, layouts.goal)) for family, (layouts, attempts) in generated[0].items()}
 
 
 def _item_distances(layouts, from_start, from_goal):
@@ -105,18 +129,9 @@ def test_layouts_are_valid_and_solvable(batches, family):
 
 
 @pytest.mark.parametrize("family", LONG)
-def test_floors_are_connected_before_placement(family):
+def test_floors_are_connected_before_placement(generated, family):
     """The drawn floors themselves are connected: placement never has to fill a pocket (whole walls, no gaps)."""
-    config = gen.GeneratorConfig(family=family)
-
-    @jax.jit
-    def floors(key):
-        headers = jax.random.bits(key, (256, HEADER_WORDS), jnp.uint32)
-        words = jax.vmap(lambda h: cell_words(h, config.max_shape)[0])(headers)
-        shelves, height, width = jax.vmap(lambda h, w: gen.FLOORS[family](h, w, config))(headers, words)
-        return shelves | ~jax.vmap(lambda h, w: gen.in_bounds_mask(h, w, config.max_shape))(height, width)
-
-    blocked = np.asarray(floors(jax.random.key(5)))
+    blocked = generated[1][family]
     free = ~blocked
     first = np.argmax(free.reshape(len(free), -1), axis=1)
     reached = numpy_bfs(blocked, np.stack([first // 16, first % 16], axis=1)) >= 0
@@ -138,10 +153,15 @@ def test_routes_are_several_times_longer_than_the_training_mixture(batches):
         assert longest[family] > 2 * SHORT_ROUTE, (family, longest)
 
 
+@pytest.fixture(scope="module")
+def again():
+    """``_program`` run again on the same keys."""
+    return _run()
+
+
 @pytest.mark.parametrize("family", LONG)
-def test_same_key_same_layout_and_keys_differ(batches, family):
-    layouts, _ = jax.tree.map(np.asarray, _batch(jax.random.split(jax.random.key(33), NUM_LAYOUTS),
-                                                  gen.GeneratorConfig(family=family)))
+def test_same_key_same_layout_and_keys_differ(batches, again, family):
+    layouts, _ = again[0][family]
     for a, b in zip(jax.tree.leaves(layouts), jax.tree.leaves(batches[family][0])):
         np.testing.assert_array_equal(a, b)
     hashes = pool_hashes(jax.tree.map(jnp.asarray, layouts))

@@ -10,7 +10,9 @@ slots, the periodic evaluation's count, so their generator compiles once.
 from __future__ import annotations
 
 from functools import partial
+from types import SimpleNamespace
 
+import fast_compile
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -21,6 +23,7 @@ from wrl_jax.core.observation import robot_observations
 from wrl_jax.core.registry import make
 from wrl_jax.envs.procedural import generators as gen
 from wrl_jax.envs.procedural.draws import cell_words
+from wrl_jax.envs.procedural.env import ProceduralWarehouse
 from wrl_jax.envs.procedural.layout import (
     PaddedLayout,
     from_arrays,
@@ -34,8 +37,10 @@ from wrl_jax.envs.procedural.pool import (
     disjoint_from,
     generate_pool,
     pool_from_layouts,
+    pool_from_keys,
     pool_hashes,
     refresh_pool,
+    stream_keys,
 )
 from wrl_jax.envs.procedural.registration import make_from_layouts, make_procedural
 from wrl_jax.envs.warehouse.layout import bfs_distances, optimal_route_lengths, parse
@@ -44,7 +49,9 @@ NUM_LAYOUTS = 5000
 CONFIG = gen.GeneratorConfig()
 HELDOUT = 64
 """Slots of every small pool of the default generator here: the periodic evaluation's held-out layouts
-(``EVAL_LAYOUTS``), the final report's held-out set, the shaping test's pools; one pool program for them all."""
+(``EVAL_LAYOUTS``), the final report's held-out set, the shaping and window tests' pools; one pool program
+for them all."""
+LONG_ROUTES = ("serpentine", "spiral", "comb")
 
 
 def _slot(batch, index):
@@ -554,9 +561,10 @@ def test_visit_levels_count_the_laps_of_a_loop():
         make_from_layouts([layout], view_radius=1, observe_visited=True, visit_levels=0)
 
 
-SMALL_FLOORS = {"pool_size": 64, "min_shape": (3, 3), "max_shape": (12, 12), "max_items": 1}
-"""Layouts from 3x3 to 12x12 in a 12x12 padding, one item: the window tests' pools (one pool program)."""
-WINDOW_RADII = (0, 1, 2, 3, 4, 11)
+WINDOW_POOL = {"pool_size": HELDOUT}
+"""The window tests' pools: the default generator's 64 slots (the module's small-pool program), floors from
+8x8 to 16x16 in a 16x16 padding."""
+WINDOW_RADII = (0, 1, 2, 3, 4, 9)
 RAY_RADII = (0, 2, 3)
 
 
@@ -570,7 +578,7 @@ def _window_probe(env, params, view_radius, key):
     state = state.replace(pos=pos, carrying=jax.random.bernoulli(key_carry))
     target = jnp.where(state.carrying, state.goal, state.item_pos)
     floor = params.pool.layouts.blocked[state.layout_index]
-    expected = robot_observations(floor, state.pos[None], target[None], state.carrying[None], view_radius, 12)
+    expected = robot_observations(floor, state.pos[None], target[None], state.carrying[None], view_radius, 16)
     return env.observe(state), expected[0], env.blocked(state), floor, state.pos, state.height
 
 
@@ -589,8 +597,8 @@ def window_runs():
     """``{radius: (env, params, probe outputs)}`` of the bit-mask test, and ``{radius: (rays env, params, plain env,
     outputs)}`` of the rays test: every radius of both tests in ONE jitted program (six programs apart cost twice
     as much to compile); each test reads its radius."""
-    plain = {radius: make_procedural(**SMALL_FLOORS, view_radius=radius) for radius in WINDOW_RADII}
-    rays = {radius: make_procedural(**SMALL_FLOORS, view_radius=radius, observe_rays=True) for radius in RAY_RADII}
+    plain = {radius: make_procedural(**WINDOW_POOL, view_radius=radius) for radius in WINDOW_RADII}
+    rays = {radius: make_procedural(**WINDOW_POOL, view_radius=radius, observe_rays=True) for radius in RAY_RADII}
 
     @jax.jit
     def program(plain_params, rays_params, window_keys, ray_keys):
@@ -611,13 +619,13 @@ def window_runs():
 def test_bit_mask_observation_is_robot_observations_bit_for_bit(window_runs, view_radius):
     """The packed-row windows equal the gathers of ``robot_observations`` on random states.
 
-    Layouts from 3x3 to 12x12 in a 12x12 padding, so windows reach off-grid cells of small floors
+    Layouts from 8x8 to 16x16 in a 16x16 padding, so windows reach off-grid cells of smaller floors
     and the wall ring; positions anywhere on the real floor (shelves too), either target.
     V <= 2 packs the rows into int32 masks; V = 3, 4 read the window's rows unpacked (no 31-bit
-    mask); V = 11 (34 walled columns) takes the gathers; all must agree.
+    mask); V = 9 (34 walled columns) takes the gathers; all must agree.
     """
     env, params, outputs = window_runs[0][view_radius]
-    assert env.bit_windows == (view_radius <= 2) and env.row_windows == (view_radius <= 10)
+    assert env.bit_windows == (view_radius <= 2) and env.row_windows == (view_radius <= 8)
     obs, expected, unpacked, floor, pos, height = outputs
     np.testing.assert_array_equal(np.asarray(unpacked), np.asarray(floor))
     np.testing.assert_array_equal(np.asarray(obs).view(np.uint32), np.asarray(expected).view(np.uint32))
@@ -625,7 +633,7 @@ def test_bit_mask_observation_is_robot_observations_bit_for_bit(window_runs, vie
     shelf = np.asarray(obs)[:, 5:5 + side * side]
     assert 0 < shelf.mean() < 1  # the windows see floor and walls, not one of them only
     # Windows that reach the off-grid rows below a floor shorter than the padding.
-    sees_padding = (np.asarray(height) < 12) & (np.asarray(pos)[:, 0] + view_radius >= np.asarray(height))
+    sees_padding = (np.asarray(height) < 16) & (np.asarray(pos)[:, 0] + view_radius >= np.asarray(height))
     assert sees_padding.sum() > (100 if view_radius else -1)
 
 
@@ -652,7 +660,7 @@ def test_rays_are_the_free_runs_a_walk_would_find(window_runs, view_radius):
     np.testing.assert_array_equal(obs[:, :-4].view(np.uint32), plain.view(np.uint32))
     floors = np.asarray(params.pool.layouts.blocked)
     expected = np.array([_numpy_free_runs(floors[s], r, c) for s, (r, c) in zip(slot, pos)], np.float32)
-    np.testing.assert_array_equal(obs[:, -4:], expected * np.float32(1 / 11))
+    np.testing.assert_array_equal(obs[:, -4:], expected * np.float32(1 / 15))
     assert expected.max() >= 5 and (expected == 0).any()  # long runs and runs stopped at once both occur
 
 
@@ -782,10 +790,19 @@ def test_ascii_map_files_load_as_layouts(tmp_path):
 
 
 # ---------------------------------------------------------------- evaluation hook
-def test_greedy_evaluation_on_heldout_layouts(env_and_params):
+@pytest.fixture(scope="module")
+def lean_env_and_params(env_and_params):
+    """The module's environment and pool observing the five scalars only (``observe_window=False``): the
+    evaluation tests' stand-in policies read nothing else, and their episode loops compile a quarter faster."""
+    env, params = env_and_params
+    lean = ProceduralWarehouse(generator=env.generator, pool_size=env.pool_size, observe_window=False)
+    return lean, lean.with_pool(params, params.pool)
+
+
+def test_greedy_evaluation_on_heldout_layouts(lean_env_and_params):
     from wrl_jax.core.evaluation import for_env
 
-    env, params = env_and_params
+    env, params = lean_env_and_params
     evaluation = for_env(env)
 
     def greedy(network_params, obs):  # head for the target (rows first for "seed" 0, columns first for 1)
@@ -819,18 +836,44 @@ def _toward_target(network_params, obs):
 
 @pytest.fixture(scope="module")
 def ood():
-    """The out-of-distribution sets for the default generator, 16 layouts each, 3 MovingAI placements (compiled once)."""
+    """The out-of-distribution sets for the default generator, 16 layouts each, 3 MovingAI placements.
+
+    ``ood_sets`` builds them with its own keys and generator configs, but the five generated sets come out of
+    ONE program compiled at LLVM level 0 (``fast_compile``; five programs at the session's level cost 2.5 times
+    as much to compile): a first pass records the ``generate_pool`` calls, one program runs them all, a second
+    pass hands each call its pool. The tests read statistics of these layouts, never their bits.
+    """
     from wrl_jax.envs.procedural import layout_sets
+
+    calls = []
+
+    def record(key, count, config, stream="train"):
+        calls.append((key, count, config, stream))
+        return SimpleNamespace(layouts=None)
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(layout_sets, "MOVINGAI_DRAWS", 3)
-        return layout_sets.ood_sets(CONFIG, ood_layouts=16)
+        patch.setattr(layout_sets, "generate_pool", record)
+        layout_sets.ood_sets(CONFIG, ood_layouts=16, names=["dense", "narrow_shelves", *LONG_ROUTES])
+        pools = iter(fast_compile.jit(lambda keys: [pool_from_keys(stream_keys(key, stream, count), config)
+                                                    for key, (_, count, config, stream) in zip(keys, calls)])(
+            [key for key, *_ in calls]))
+
+        def served(key, count, config, stream="train"):
+            expected = calls.pop(0)
+            assert (count, config, stream) == expected[1:] and np.array_equal(
+                jax.random.key_data(key), jax.random.key_data(expected[0]))
+            return next(pools)
+
+        patch.setattr(layout_sets, "generate_pool", served)
+        sets = layout_sets.ood_sets(CONFIG, ood_layouts=16)
+        assert not calls  # every generated set was served
+        return sets
 
 
-def test_final_report_measures_heldout_and_ood_sets(env_and_params, ood, monkeypatch):
-    """The final generalization report: sets, sizes, yardsticks, per-seed rows, the hash check, the tables."""
-    from types import SimpleNamespace
-
+def test_final_report_measures_heldout_and_ood_sets(lean_env_and_params, ood, monkeypatch):
+    """The final generalization report: sets, sizes, yardsticks, per-seed rows, the hash check, the tables, and
+    its one batch over every set (padded to one item capacity) giving the held-out pool's results alone."""
     from wrl_jax.core.evaluation import FinalContext
     from wrl_jax.envs.procedural import evaluation, layout_sets, reports
 
@@ -841,7 +884,7 @@ def test_final_report_measures_heldout_and_ood_sets(env_and_params, ood, monkeyp
         return ood
 
     monkeypatch.setattr(evaluation, "ood_sets", ood_sets)
-    env, params = env_and_params
+    env, params = lean_env_and_params
     params = params.replace(max_steps=jnp.int32(60))
     # A "stochastic" stand-in whose draws are its greedy action: the sampled held-out row must equal the greedy one.
     algo = SimpleNamespace(greedy_action=_toward_target, has_stochastic_policy=True,
@@ -865,6 +908,15 @@ def test_final_report_measures_heldout_and_ood_sets(env_and_params, ood, monkeyp
         if row["mean_excess"] is not None:  # nobody beats the BFS optimum
             assert row["mean_excess"] >= 0 and row["excess_fraction"] == row["mean_excess"] / row["mean_optimal"]
     assert 0 < heldout["delivery_rate"] < 1  # the stand-in policy walks into shelves on some floors only
+    # One batch over sets (padded to 20 item rows by study_12x12) = the held-out pool evaluated alone.
+    heldout_layouts = layout_sets.heldout_set(env.generator, params.pool)[0].layouts
+    alone = jax.tree.map(np.asarray, jax.jit(jax.vmap(
+        lambda net: evaluation.evaluate_pool(_toward_target, net, env, params, pool_from_layouts(
+            [_slot(heldout_layouts, i) for i in range(HELDOUT)]))))(jnp.arange(2)))
+    delivered = alone.delivered & alone.real
+    assert heldout["episodes"] == alone.real.sum() and ood["study_12x12"]["layouts"] == 1
+    assert heldout["delivery_rate"] == delivered.sum() / alone.real.sum()
+    assert heldout["per_seed"][1]["delivery_rate"] == delivered[1].sum() / alone.real[1].sum()
     assert report["final_report_seconds"] > 0
     details = reports.format_details(report)
     assert f"| heldout | {HELDOUT} |" in details and "| movingai | 3 |" in details and "seed 8" in details
@@ -875,10 +927,13 @@ def test_final_report_measures_heldout_and_ood_sets(env_and_params, ood, monkeyp
     assert f"final: {HELDOUT} held-out layouts" in headline and "final, sampled policy: delivered / excess" in headline
 
 
-def test_final_sets_agree_with_the_periodic_evaluation_and_drop_training_layouts(env_and_params):
+def test_final_sets_agree_with_the_periodic_evaluation_and_drop_training_layouts(lean_env_and_params):
+    """The held-out set's hash check, sampled episodes, refusals. (That one batch over sets equals each pool
+    evaluated alone is checked on the final report's own batch, in the test above; the ``overall`` row, the
+    sum of the sets', by tests/cli/test_procedural_cli.py's evaluation on layout files.)"""
     from wrl_jax.envs.procedural import evaluation, layout_sets
 
-    env, params = env_and_params
+    env, params = lean_env_and_params
     params = params.replace(max_steps=jnp.int32(60))
     heldout, overlap = layout_sets.heldout_set(env.generator, params.pool, count=HELDOUT)
     assert overlap == 0 and heldout.size == HELDOUT
@@ -886,18 +941,6 @@ def test_final_sets_agree_with_the_periodic_evaluation_and_drop_training_layouts
     planted = jax.tree.map(lambda t, h: t.at[:3].set(h[:3]), params.pool.layouts, heldout.layouts)
     kept, overlap = layout_sets.heldout_set(env.generator, params.pool.replace(layouts=planted), count=HELDOUT)
     assert overlap == 3 and kept.size == HELDOUT - 3
-    # One batch over sets (padded to 20 item rows by the study map) = each pool evaluated alone.
-    sets = [heldout, layout_sets.LayoutSet("study", "", jax.tree.map(
-        lambda x: x[None], layout_sets.study_layout("12x12", env.max_shape)))]
-    together = evaluation.evaluate_sets(_toward_target, jnp.arange(2), env, params, sets, [0, 1], overall="all")
-    alone = jax.tree.map(np.asarray, jax.jit(jax.vmap(
-        lambda net: evaluation.evaluate_pool(_toward_target, net, env, params, pool_from_layouts(
-            [_slot(heldout.layouts, i) for i in range(HELDOUT)]))))(jnp.arange(2)))
-    delivered = alone.delivered & alone.real
-    assert together["heldout"]["episodes"] == alone.real.sum()
-    assert together["heldout"]["delivery_rate"] == delivered.sum() / alone.real.sum()
-    assert together["heldout"]["per_seed"][1]["delivery_rate"] == delivered[1].sum() / alone.real[1].sum()
-    assert together["all"]["episodes"] == together["heldout"]["episodes"] + 2 * 20
     # Sampled episodes: the same key, the same episodes; another key, other ones.
     def uniform(net, obs, key):
         return jax.random.randint(key, (), 0, 4)

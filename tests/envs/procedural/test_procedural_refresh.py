@@ -9,8 +9,9 @@ again), that the final report can list every layout training saw, and the
 errors.
 
 Programs are shared: one compiled refresh (``refresh_step``) serves every test, and every pool of the
-small generator has the fixture's 32 slots (the initial pool, four updates' refreshes regenerated at
-once, the held-out set), so its generator compiles once.
+default generator here has the fixture's 64 slots (the initial pool, four updates' refreshes regenerated at
+once, the held-out set): the pool program of the other procedural modules' 64-layout pools (the session's
+cache serves it).
 """
 
 from __future__ import annotations
@@ -32,9 +33,8 @@ from wrl_jax.envs.procedural.env import ProceduralWarehouse
 from wrl_jax.envs.procedural.pool import generate_pool, pool_hashes, refresh_slots
 from wrl_jax.envs.procedural.registration import make_procedural
 
-POOL, REFRESH = 32, 8
-SMALL = {"seed": 3, "pool_size": POOL, "pool_refresh": REFRESH, "max_shape": (8, 8), "min_shape": (5, 5),
-         "max_items": 4, "max_steps": 40}
+POOL, REFRESH = 64, 16
+SMALL = {"seed": 3, "pool_size": POOL, "pool_refresh": REFRESH, "max_steps": 40}
 
 
 @pytest.fixture(scope="module")
@@ -86,7 +86,7 @@ def test_a_refresh_renews_the_oldest_slots_and_recomputes_their_arrays(small, re
     # Fresh layouts are solvable: every real item has a finite BFS route (the generator's guarantee).
     items = np.arange(final.pool.optimal.shape[1])[None, :] < np.asarray(final.pool.layouts.num_items)[:, None]
     optimal = np.asarray(final.pool.optimal)[items]
-    assert (optimal > 0).all() and (optimal < 8 * 8 * 2).all()
+    assert (optimal > 0).all() and (optimal < 16 * 16 * 2).all()
 
 
 def test_the_refresh_is_a_function_of_the_update_alone(small, refresh_step, refreshed):
@@ -103,7 +103,7 @@ def test_the_refresh_is_a_function_of_the_update_alone(small, refresh_step, refr
 
 def test_training_layout_hashes_list_every_layout_training_saw(small, refreshed):
     env, params = small
-    # After 4 updates (4 x 8 = 32 refreshed slots, regenerated in one call of the pool's own program).
+    # After 4 updates (4 x 16 = 64 refreshed slots, regenerated in one call of the pool's own program).
     seen = env.training_layout_hashes(refreshed[4], updates=4)
     for state in refreshed[:5]:
         assert np.isin(_slot_hashes(state), seen).all()
@@ -137,8 +137,8 @@ def test_ppo_and_dqn_train_on_the_renewed_pool(small, refreshed):
 
 def test_bad_refresh_settings_fail_clearly(small, tmp_path):
     env, _ = small
-    with pytest.raises(ValueError, match="pool_refresh must be in 0..pool_size=32"):
-        make_procedural(**{**SMALL, "pool_refresh": 33})
+    with pytest.raises(ValueError, match="pool_refresh must be in 0..pool_size=64"):
+        make_procedural(**{**SMALL, "pool_refresh": 65})
     with pytest.raises(ValueError, match="pool_refresh must be in"):
         make_procedural(**{**SMALL, "pool_refresh": -1})
     with pytest.raises(ValueError, match="needs a generated pool"):

@@ -267,21 +267,22 @@ def test_spaces_shapes_and_batches_under_jit_and_vmap():
         action = np.zeros((3, 2, 3) if kind == "dict" else (3, 2), np.int32)
 
         @fast_compile.jit  # the batched reset and three batched steps: one program per type
-        def episode(params, env=env, action=action):
+        def episode(params, env=env, action=action, space=space):
             _, state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(jax.random.key(0), 3), params)
 
             def step(state, t):
                 obs, state, _, _, _, info = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
                     jax.random.split(jax.random.key(t + 1), 3), state, action, params)
-                return state, (obs, info["final_global_state"])
+                # Each single observation in the space, checked here (eagerly, every check compiled its operations).
+                return state, (obs, info["final_global_state"], jax.vmap(space.contains)(obs))
 
             return jax.lax.scan(step, state, jnp.arange(3))[1]
 
-        observations, global_states = episode(params)
+        observations, global_states, contained = jax.tree.map(np.asarray, episode(params))
+        assert contained.shape == (3, 3) and contained.all()
         for t in range(3):
             for b in range(3):
                 single = jax.tree.map(lambda leaf: leaf[t, b], observations)
-                assert bool(space.contains(single))
                 assert jax.tree.map(lambda leaf: leaf.shape, single) == shapes(space)
         info = {"final_global_state": global_states[-1]}
         assert info["final_global_state"].shape == (3, 2 * env.obs_size)

@@ -170,9 +170,9 @@ def triple_table(height: int, width: int) -> np.ndarray:
     def neighbour(d):
         return np.clip(y + shift[d, 1], 0, height - 1) * width + np.clip(x + shift[d, 0], 0, width - 1)
 
-    with jax.ensure_compile_time_eval():
-        first = first_precedes_in_triple(jnp.asarray(probes[neighbour(a)]), jnp.asarray(probes[t]),
-                                         jnp.asarray(probes[neighbour(b)]))
+    with jax.ensure_compile_time_eval():  # concrete even when called while a step is traced
+        # One compiled program, not one per operation (eagerly, each of its dozens of operations compiles alone).
+        first = jax.jit(first_precedes_in_triple)(probes[neighbour(a)], probes[t], probes[neighbour(b)])
     table = np.array(first, bool)
     table.flags.writeable = False  # shared by every caller (cached)
     return table
