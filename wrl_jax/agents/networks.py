@@ -56,7 +56,7 @@ def mlp_forward_flops(input_size: int, hidden_sizes: Sequence[int], output_size:
 
 
 @functools.cache
-def measured_matmul_peak_gflops(size: int = 2048, repeats: int = 5) -> float:
+def measured_matmul_peak_gflops(size: int = 1024, repeats: int = 5) -> float:
     """Float32 matmul throughput of JAX's default device, measured now (best of ``repeats``).
 
     The yardstick for "how close does training come to what this machine can
@@ -65,7 +65,8 @@ def measured_matmul_peak_gflops(size: int = 2048, repeats: int = 5) -> float:
     whose peaks differ several times (about 180 GFLOP/s on the project's first
     2-core development CPU, about 475 on its AVX-512 successor), and measured
     in the same process as the run it is compared with, under the same load.
-    Costs about 0.3 s on 2 cores; cached per process.
+    Costs about 0.2 s of CPU (1024 is as fast per FLOP as 2048 here, at an
+    eighth of the work); cached per process.
     """
     a = jnp.ones((size, size), jnp.float32)
     matmul = jax.jit(jnp.matmul)

@@ -112,8 +112,11 @@ class BatchTiming:
 
 
 def stack_trees(trees: Sequence[Any]) -> Any:
-    """Stack pytrees of the same structure along a new leading axis."""
-    return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *trees)
+    """Stack pytrees of the same structure along a new leading axis.
+
+    Stacked in NumPy (each leaf first made a JAX array, for JAX's dtypes): an eager ``jnp.stack`` compiles
+    a program per leaf shape and count."""
+    return jax.tree.map(lambda *xs: jnp.asarray(np.stack([np.asarray(jnp.asarray(x)) for x in xs])), *trees)
 
 
 def train_variants(

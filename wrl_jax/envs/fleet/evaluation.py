@@ -207,7 +207,7 @@ def _write_gif(context: FinalContext, horizon: int):
     from wrl_jax.envs.fleet.render import record_shift
     from wrl_jax.envs.warehouse.render import save_gif
 
-    first = jax.tree.map(lambda x: x[0], context.network_params)
+    first = jax.tree.map(lambda x: np.asarray(x)[0], context.network_params)  # NumPy: no eager slice programs
     greedy_action = context.algo.greedy_action
 
     def policy(key, obs, state):

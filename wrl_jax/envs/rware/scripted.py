@@ -258,7 +258,8 @@ def team_episodes(env: Any, params: RwareParams, num_episodes: int = TRAINING_EP
     if team == "scripted":
         policy = scripted_policy(env, params, explore, blocked_explore, crowd)
     elif team == "random":
-        policy = lambda key, state: jax.random.randint(key, (env.num_agents,), 0, NUM_ACTIONS, dtype=jnp.int32)
+        def policy(key, state):
+            return jax.random.randint(key, (env.num_agents,), 0, NUM_ACTIONS, dtype=jnp.int32)
     else:
         raise ValueError(f"unknown team {team!r}; known: scripted, random")
     horizon = horizon_of(env) if horizon is None else horizon
