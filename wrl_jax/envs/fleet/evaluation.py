@@ -207,7 +207,8 @@ def _write_gif(context: FinalContext, horizon: int):
     from wrl_jax.envs.fleet.render import record_shift
     from wrl_jax.envs.warehouse.render import save_gif
 
-    first = jax.tree.map(lambda x: np.asarray(x)[0], context.network_params)  # NumPy: no eager slice programs
+    # Sliced in NumPy (an eager slice compiles a program per leaf shape), then JAX arrays again for the policy.
+    first = jax.tree.map(lambda x: jnp.asarray(np.asarray(x)[0]), context.network_params)
     greedy_action = context.algo.greedy_action
 
     def policy(key, obs, state):
