@@ -14,7 +14,7 @@ import importlib
 import sys
 
 import wrl_jax.envs  # noqa: F401  (registers the built-in names)
-from wrl_jax.core.registry import make, register_with_gymnax, registered_names  # noqa: F401  (public: listed in __all__ below)
+from wrl_jax.core.registry import make, register_with_gymnax, registered_names  # noqa: F401  (in __all__)
 from wrl_jax.wrappers.registration import register_gymnasium_envs
 
 register_gymnasium_envs()

@@ -28,7 +28,7 @@ from wrl_jax.envs.warehouse.layout import MOVES
 # A tiny PPO (compiles in seconds, runs in milliseconds): the driver is what is tested here. The configuration
 # of test_cli.py's TINY command (same programs).
 TINY = PPOConfig(
-    num_envs=8, num_steps=16, num_minibatches=2, update_epochs=1, hidden_sizes=(16,), total_timesteps=8 * 16 * 7
+    num_envs=8, num_steps=16, num_minibatches=2, update_epochs=2, hidden_sizes=(16,), total_timesteps=8 * 16 * 7
 )
 SEEDS = [3, 4]
 

@@ -56,7 +56,7 @@ def mlp_forward_flops(input_size: int, hidden_sizes: Sequence[int], output_size:
 
 
 @functools.cache
-def measured_matmul_peak_gflops(size: int = 1024, repeats: int = 5) -> float:
+def measured_matmul_peak_gflops(size: int | None = None, repeats: int = 5) -> float:
     """Float32 matmul throughput of JAX's default device, measured now (best of ``repeats``).
 
     The yardstick for "how close does training come to what this machine can
@@ -65,9 +65,12 @@ def measured_matmul_peak_gflops(size: int = 1024, repeats: int = 5) -> float:
     whose peaks differ several times (about 180 GFLOP/s on the project's first
     2-core development CPU, about 475 on its AVX-512 successor), and measured
     in the same process as the run it is compared with, under the same load.
-    Costs about 0.2 s of CPU (1024 is as fast per FLOP as 2048 here, at an
-    eighth of the work); cached per process.
+    ``size`` defaults to 1024 on a CPU (on the 2-core CPU measured, 221 GFLOP/s
+    against 211 at 2048, for an eighth of the work: about 0.2 s) and 4096 on an accelerator
+    (where a small matmul measures launch overhead, not the peak). Cached per process.
     """
+    if size is None:
+        size = 1024 if jax.default_backend() == "cpu" else 4096
     a = jnp.ones((size, size), jnp.float32)
     matmul = jax.jit(jnp.matmul)
     matmul(a, a).block_until_ready()

@@ -114,8 +114,9 @@ class BatchTiming:
 def stack_trees(trees: Sequence[Any]) -> Any:
     """Stack pytrees of the same structure along a new leading axis.
 
-    Stacked in NumPy (each leaf first made a JAX array, for JAX's dtypes): an eager ``jnp.stack`` compiles
-    a program per leaf shape and count."""
+    Stacked in NumPy (an eager ``jnp.stack`` compiles a program per leaf shape and count), each leaf first made
+    a JAX array so that Python numbers get JAX's dtypes (float32, int32; not weakly typed after stacking). For
+    concrete trees, outside ``jit``."""
     return jax.tree.map(lambda *xs: jnp.asarray(np.stack([np.asarray(jnp.asarray(x)) for x in xs])), *trees)
 
 

@@ -1,7 +1,8 @@
 """How the host drives a run's compiled updates: chunk size, evaluation and logging cadence, checkpoints.
 
-Apart from :mod:`~wrl_jax.training.driver` because none of it reaches a compiled program but the chunk
-size (the number of updates one call scans), and the driver reads best without it.
+Apart from :mod:`~wrl_jax.training.driver` because it is the host's side: of its fields only the chunk size
+(the updates one call scans) and ``eval_every`` (the evaluation's cadence inside the chunk) reach the compiled
+program, and the driver reads best without the rest.
 """
 
 from __future__ import annotations
