@@ -4,8 +4,10 @@ truncation, exact repeats, and learned behaviour on a warehouse small enough for
 The learning runs share one compiled program per algorithm (module fixtures, three seeds vmapped). SAC's
 (``sac_run``) serves five tests: its learning, a second run's bits, the driver's chunks and resume (which must give
 its bits), and its replay buffer (truncations, and the warm-up's independent uniform actions for the
-correlated-exploration test). Programs whose results are only compared with thresholds (TD3's and PPO's learning
-runs, every evaluation, the correlated collection) compile at LLVM level 0 (``fast_compile``); SAC's training,
+correlated-exploration test). The nine learned actors (SAC's, TD3's and PPO's, three seeds each) are evaluated by
+one program (``evaluations``: the corridor's episodes traced and compiled once, each row acting with its own
+algorithm's greedy action). Programs whose results are only compared with thresholds (TD3's and PPO's learning
+runs, the evaluation, the correlated collection) compile at LLVM level 0 (``fast_compile``); SAC's training,
 whose bits are compared, at the session's level.
 """
 
@@ -50,20 +52,15 @@ def corridor():
     return make_continuous(CORRIDOR, max_steps=60, num_rays=8)
 
 
-def train_and_evaluate(algo, env, params):
-    """The seeds' runners and metrics, and their evaluation: read against thresholds only, so compiled at LLVM
-    level 0 (two programs, as the package's driver trains and evaluates)."""
-    runners, metrics = fast_compile.jit(make_train_seeds(algo))(training.seed_keys(SEEDS))
-    actors = jax.vmap(algo.network_params)(runners)
-    evaluation = fast_compile.jit(jax.vmap(lambda p: seed_summary(evaluate_policy(algo.greedy_action, p, env,
-                                                                                  params))))(actors)
-    return runners, metrics, jax.tree.map(np.asarray, evaluation)
+def train_seeds(algo):
+    """The seeds' runners and metrics: read against thresholds only, so compiled at LLVM level 0."""
+    return fast_compile.jit(make_train_seeds(algo))(training.seed_keys(SEEDS))
 
 
 @pytest.fixture(scope="module")
 def sac_run(corridor):
     """SAC's learning run through the driver in one chunk (``Trainer``): its start, runners and metrics (seeds first),
-    the evaluation, and ``train`` to run the compiled programs again. Its bits are the chunked and resumed runs'."""
+    and ``train`` to run the compiled programs again. Its bits are the chunked and resumed runs'."""
     env, params = corridor
     algo = SAC(tiny(SACConfig, initial_alpha=0.1), env, params)
     trainer = training.Trainer(algo, SEEDS, training.LoopConfig(chunk_updates=algo.num_updates, eval_every=0,
@@ -75,14 +72,56 @@ def sac_run(corridor):
         return start, runners, {k: v.T for k, v in metrics.items()}
 
     start, runners, metrics = train()
-    actors = jax.vmap(algo.network_params)(runners)
-    evaluation = fast_compile.jit(jax.vmap(lambda p: seed_summary(evaluate_policy(algo.greedy_action, p, env,
-                                                                                  params))))(actors)
-    return algo, start, runners, metrics, jax.tree.map(np.asarray, evaluation), train
+    return algo, start, runners, metrics, train
 
 
-def test_sac_learns_to_deliver_without_collisions(sac_run):
-    _, _, _, metrics, evaluation, _ = sac_run
+@pytest.fixture(scope="module")
+def td3_run(corridor):
+    env, params = corridor
+    algo = TD3(tiny(TD3Config), env, params)
+    return algo, train_seeds(algo)[0]
+
+
+@pytest.fixture(scope="module")
+def ppo_run(corridor):
+    """PPO with a box of actions on the corridor (its test reads the evaluation and the actors' Gaussian)."""
+    from wrl_jax.agents.ppo import PPO
+    from wrl_jax.agents.ppo_config import PPOConfig
+
+    env, params = corridor
+    config = PPOConfig(num_envs=16, num_steps=32, num_minibatches=4, update_epochs=4, hidden_sizes=(64, 64),
+                       total_timesteps=16 * 32 * 40, learning_rate=3e-3, ent_coef=0.0, gamma=0.99, obs_encoding="raw")
+    algo = PPO(config, env, params)
+    return algo, train_seeds(algo)[0]
+
+
+@pytest.fixture(scope="module")
+def evaluations(corridor, sac_run, td3_run, ppo_run):
+    """Each algorithm's evaluation (``seed_summary`` per seed, as NumPy) from one program at LLVM level 0 (thresholds
+    only): a row per (algorithm, seed) holds every algorithm's actor of its seed and acts with its own algorithm's
+    greedy action (the others' are computed and dropped), so the episodes are traced and compiled once, not thrice."""
+    env, params = corridor
+    named = {"sac": (sac_run[0], sac_run[2]), "td3": td3_run, "ppo": ppo_run}
+    algos = [algo for algo, _ in named.values()]
+
+    def greedy(row, obs):
+        which, nets = row
+        return jnp.stack([algo.greedy_action(net, obs) for algo, net in zip(algos, nets)])[which]
+
+    @fast_compile.jit
+    def evaluate(all_runners):
+        actors = [jax.vmap(algo.network_params)(runners) for algo, runners in zip(algos, all_runners)]
+        rows = (np.repeat(np.arange(len(algos)), len(SEEDS)),  # row a * len(SEEDS) + s: algorithm a, seed s
+                [jax.tree.map(lambda x: jnp.concatenate([x] * len(algos)), nets) for nets in actors])
+        return jax.vmap(lambda row: seed_summary(evaluate_policy(greedy, row, env, params)))(rows)
+
+    summary = evaluate([runners for _, runners in named.values()])
+    summary = jax.tree.map(lambda x: np.asarray(x).reshape(len(algos), len(SEEDS)), summary)
+    return {name: {k: v[a] for k, v in summary.items()} for a, name in enumerate(named)}
+
+
+def test_sac_learns_to_deliver_without_collisions(sac_run, evaluations):
+    metrics, evaluation = sac_run[3], evaluations["sac"]
     print({k: v.tolist() for k, v in evaluation.items()})
     assert evaluation["eval_solved"].tolist() == [1.0] * len(SEEDS)  # measured: 3/3, 9 steps each
     assert np.all(evaluation["eval_mean_steps"] <= 12)
@@ -96,10 +135,8 @@ def test_sac_learns_to_deliver_without_collisions(sac_run):
     assert not np.allclose(np.asarray(metrics["alpha"])[:, -1], 0.1)
 
 
-def test_td3_learns_to_deliver(corridor):
-    env, params = corridor
-    algo = TD3(tiny(TD3Config), env, params)
-    _, _, evaluation = train_and_evaluate(algo, env, params)
+def test_td3_learns_to_deliver(evaluations):
+    evaluation = evaluations["td3"]
     print({k: v.tolist() for k, v in evaluation.items()})
     assert (evaluation["eval_success_rate"] == 1.0).sum() >= 2  # measured: 2/3 seeds solve it in 8,000 steps
 
@@ -108,7 +145,7 @@ def test_same_seed_same_bits_and_seeds_differ(sac_run):
     """The same seeds run again (``sac_run``'s compiled programs: a separate trace of the same updates, in other
     chunks, is compared bit for bit in test_sac_chunks_and_resume_give_the_same_bits) give the same bits; seeds
     differ."""
-    _, _, runners, _, _, train = sac_run
+    _, _, runners, _, train = sac_run
     _, again, _ = train()
     for a, b in zip(jax.tree_util.tree_leaves(runners), jax.tree_util.tree_leaves(again)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
@@ -120,13 +157,13 @@ def test_truncation_is_stored_with_the_reached_observation(sac_run):
     """Episodes of the corridor end by truncation at 60 steps early in training: the stored ``next_obs``
     of such a transition is where the robot got to (one step from ``obs``), not the next episode's start,
     and ``terminated`` is False there, so the target bootstraps from it."""
-    algo, _, runners, _, _, _ = sac_run
-    data = jax.tree.map(lambda x: np.asarray(x[0]), runners.buffer.data)
+    algo, _, runners, _, _ = sac_run
+    data = jax.tree.map(lambda x: np.asarray(x)[0], runners.buffer.data)  # NumPy: eager slices compile
     env = algo.env
     step = float(algo.env_params.v_max * algo.env_params.dt) * 1.25  # a gain may stretch a step
     moved = np.abs(data.next_obs[:, :2] - data.obs[:, :2]) * np.array([env.width, env.height])
     assert np.all(moved.max(axis=1) <= step + 1e-5)
-    filled = int(runners.buffer.size[0])
+    filled = int(np.asarray(runners.buffer.size)[0])
     # Rows are written num_envs at a time; the row of env e at vector step t+1 follows it by num_envs rows.
     follows = np.abs(data.obs[algo.config.num_envs:filled, :2] - data.next_obs[: filled - algo.config.num_envs, :2])
     resets = follows.max(axis=1) > 1e-6
@@ -219,33 +256,27 @@ def test_correlated_exploration_keeps_its_direction(corridor, sac_run):
     # The collection alone (the gradient step is not compiled): 200 vector steps, all before learning starts.
     collect = fast_compile.jit(lambda key: jax.lax.scan(algo._env_step, algo.init(key), jnp.zeros(200, jnp.int32))[0])
     runner = collect(jax.random.key(0))
-    actions = np.asarray(runner.buffer.data.action[: 8 * 200]).reshape(200, 8, 2)
+    actions = np.asarray(runner.buffer.data.action)[: 8 * 200].reshape(200, 8, 2)
     lag1 = lag1_correlation(actions)
     assert lag1 > 0.75, lag1
     assert actions.min() < -0.9 and actions.max() > 0.9
     # rho = 0: independent uniform actions.
-    independent_algo, _, independent_runners, _, _, _ = sac_run
+    independent_algo, _, independent_runners, _, _ = sac_run
     assert independent_algo.config.noise_correlation == 0.0 and independent_algo.config.learning_starts == 500
     assert independent_algo.config.num_envs == 8  # 62 vector steps of 8 envs: the 496 warm-up rows
-    warm_up = np.asarray(independent_runners.buffer.data.action[:, : 8 * 62]).reshape(len(SEEDS), 62, 8, 2)
+    warm_up = np.asarray(independent_runners.buffer.data.action)[:, : 8 * 62].reshape(len(SEEDS), 62, 8, 2)
     lag1 = [lag1_correlation(seed_actions) for seed_actions in warm_up]
     print("rho 0.9:", lag1_correlation(actions), "rho 0, per seed:", lag1)
     assert max(abs(x) for x in lag1) < 0.15, lag1
     assert warm_up.min() < -0.9 and warm_up.max() > 0.9
 
 
-def test_ppo_gaussian_policy_learns_the_corridor(corridor):
+def test_ppo_gaussian_policy_learns_the_corridor(ppo_run, evaluations):
     """PPO with a box of actions: a diagonal Gaussian (learned state-independent spread), the sample's
     density in the ratio, the mean clipped to the box as the greedy action."""
-    from wrl_jax.agents.ppo import PPO
-    from wrl_jax.agents.ppo_config import PPOConfig
-
-    env, params = corridor
-    config = PPOConfig(num_envs=16, num_steps=32, num_minibatches=4, update_epochs=4, hidden_sizes=(64, 64),
-                       total_timesteps=16 * 32 * 40, learning_rate=3e-3, ent_coef=0.0, gamma=0.99, obs_encoding="raw")
-    algo = PPO(config, env, params)
+    algo, runners = ppo_run
+    evaluation = evaluations["ppo"]
     assert algo.action_kind == "continuous"
-    runners, _, evaluation = train_and_evaluate(algo, env, params)  # at LLVM level 0: thresholds only
     actors = jax.vmap(algo.network_params)(runners)
     print({k: v.tolist() for k, v in evaluation.items()})
     assert (evaluation["eval_solved"] == 1.0).sum() >= 2
@@ -265,7 +296,7 @@ def test_ppo_gaussian_policy_learns_the_corridor(corridor):
 def test_sac_chunks_and_resume_give_the_same_bits(sac_run, tmp_path):
     """The off-policy loop through the driver: chunks of 250 updates and a resume from a checkpoint give ``sac_run``'s
     run in one chunk of 1,000 bit for bit (the replay buffer, the targets and the temperature are in the checkpoint)."""
-    algo, start, whole, _, _, _ = sac_run
+    algo, start, whole, _, _ = sac_run
     assert algo.num_updates == 1000
     in_pieces = training.Trainer(algo, SEEDS, training.LoopConfig(chunk_updates=250, eval_every=0, progress=False))
 

@@ -6,9 +6,10 @@ generated layouts), its custom backward pass must be the gradient (checked by fi
 training must make shelves dear by itself (the costs start equal everywhere).
 
 Compiled programs are shared: the module's environment (``map_env``, a 64-layout pool) is also the one
-PPO trains on, its observations come from one compiled reset of 48 environments (``map_obs``: the
-tests take slices), and every check runs its JAX work in one jitted call (``_gradients`` serves the
-three seeds of the gradient check and the converged one); no test runs eager ``jnp`` operations op by op.
+PPO trains on, its observations are 48 rows of its reset table (``map_obs``: the tests take slices), every
+check runs its JAX work in one jitted call (``_gradients`` serves the three seeds of the gradient check and
+the converged one), and the learning test trains and evaluates in one program; no test runs eager ``jnp``
+operations op by op.
 """
 
 from __future__ import annotations
@@ -51,10 +52,11 @@ def map_env():
 
 @pytest.fixture(scope="module")
 def map_obs(map_env):
-    """``(obs, grids)``: 48 first observations of ``map_env`` and their map channels ``(48, 3, H, W)`` (one program)."""
+    """``(obs, grids)``: 48 first observations of ``map_env`` and their map channels ``(48, 3, H, W)``: item 0 of
+    the pool's first 48 layouts, read from the params' reset table (what ``reset`` returns; no program)."""
     env, params = map_env
     count = 48
-    obs, _ = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))(jax.random.split(jax.random.key(3), count), params)
+    obs = np.asarray(params.reset_obs)[:count, 0]
     offset, height, width = env.map_observation()
     return obs, np.asarray(obs[:, offset:]).reshape(count, 3, height, width)
 
@@ -263,32 +265,40 @@ def test_training_sharpens_the_planning_policy_on_held_out_layouts(map_env):
     untrained network's greedy policy already walks shortest routes; its sampled policy does not (the prior's
     logits leave about a fifth of the probability to worse moves). Training must make the sampled policy take
     the best move (optimal episodes), keep the greedy one there, and teach the critic."""
-    from wrl_jax.envs.procedural.evaluation import evaluate_sets
-    from wrl_jax.envs.procedural.layout_sets import EVAL_SEED, LayoutSet
+    from wrl_jax.envs.procedural.evaluation import run_episodes
+    from wrl_jax.envs.procedural.layout_sets import EVAL_SEED
     from wrl_jax.envs.procedural.pool import generate_pool
+    from wrl_jax.envs.procedural.reports import episode_stats
 
     env, params = map_env
     # 25 updates (measured: greedy 0.987, sampled 0.958 from 0.055, explained variance 0.72 over the last 10).
     config = dataclasses.replace(ppo_config.PROCEDURAL, num_envs=32, total_timesteps=25 * 1024, hidden_sizes=(64, 64))
     algo = ppo.PPO(config, env, params)
     train = make_train(algo)
+    # 64 held-out layouts, every real item of each: the episodes evaluate_sets runs for one set.
+    heldout = generate_pool(jax.random.key(EVAL_SEED), 64, env.generator, stream="heldout")
+    real = np.arange(heldout.layouts.max_items)[None, :] < np.asarray(heldout.layouts.num_items)[:, None]
+    slots, items = (jnp.asarray(index, jnp.int32) for index in np.nonzero(real))
 
     @jax.jit
-    def trained_and_untrained(key):  # the untrained network comes out of the training program too
+    def train_and_evaluate(key, pool):
+        """Training, then the trained and the untrained network (two "seeds") greedy and sampled on ``pool``:
+        one program (run_episodes as evaluate_sets runs it, without a program per policy kind)."""
         runner, metrics = train(key)
-        # The trained and the untrained network as two "seeds" of one evaluation (one program per policy kind).
-        return metrics, jax.tree.map(lambda *x: jnp.stack(x), algo.network_params(runner),
-                                     algo.network_params(algo.init(key)))
+        network = jax.tree.map(lambda *x: jnp.stack(x), algo.network_params(runner),
+                               algo.network_params(algo.init(key)))
+        eval_params = env.with_pool(params, pool)
 
-    metrics, network = trained_and_untrained(jax.random.key(0))
-    heldout = LayoutSet("heldout", "64 held-out layouts",
-                        generate_pool(jax.random.key(EVAL_SEED), 64, env.generator, stream="heldout").layouts)
-    common = (algo.greedy_action, network, env, params, [heldout], [0, 1])
-    greedy_rows = evaluate_sets(*common, memory=algo.policy_memory())["heldout"]["per_seed"]
-    sampled_rows = evaluate_sets(*common, sample_action=algo.sample_action, key=jax.random.key(1),
-                                 memory=algo.policy_memory())["heldout"]["per_seed"]
-    (greedy, greedy_0), (sampled, sampled_0) = ([row["optimal_rate"] for row in rows]
-                                                for rows in (greedy_rows, sampled_rows))
+        def episodes(net, sample_action=None, sample_key=None):
+            return run_episodes(algo.greedy_action, net, env, eval_params, slots, items, sample_action, sample_key,
+                                algo.policy_memory())
+
+        return metrics, jax.vmap(episodes)(network), jax.vmap(
+            lambda net: episodes(net, algo.sample_action, jax.random.key(1)))(network)
+
+    metrics, *outcomes = train_and_evaluate(jax.random.key(0), heldout)
+    (greedy, greedy_0), (sampled, sampled_0) = ([episode_stats(*(np.asarray(x)[seed] for x in outcome))["optimal_rate"]
+                                                 for seed in (0, 1)] for outcome in outcomes)
     print(f"at the optimum, greedy: {greedy:.3f} (untrained {greedy_0:.3f}); sampled {sampled:.3f} ({sampled_0:.3f})")
     assert greedy_0 > 0.95 and greedy > 0.95, (greedy_0, greedy)
     assert sampled > sampled_0 + 0.3, (sampled, sampled_0)

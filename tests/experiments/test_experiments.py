@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import fast_compile
 
 from wrl_jax.envs.warehouse import evaluation
 from wrl_jax.experiments import common, failure_modes, forgetting, media, scale, sensitivity, table3
@@ -62,17 +63,17 @@ def test_mean_ci_bootstrap_bounds_nan_and_constant():
 
 
 def test_per_seed_metrics_by_hand():
-    # 2 seeds x 3 item rows, the last row padding (invalid).
+    # 2 seeds x 3 item rows, the last row padding (invalid); NumPy inputs (the metrics are NumPy: no eager programs).
     ep = evaluation.EpisodeEval(
-        valid=jnp.array([[True, True, False], [True, True, False]]),
-        delivered=jnp.array([[True, True, False], [True, False, False]]),
-        steps=jnp.array([[14, 16, 0], [14, 150, 0]]),
-        optimal_steps=jnp.array([[14, 14, 14], [14, 14, 14]]),
-        episode_return=jnp.array([[271.5, 270.5, 0.0], [271.5, -75.0, 0.0]]),
-        collisions=jnp.array([[0, 1, 0], [0, 0, 0]]),
-        wall_bumps=jnp.zeros((2, 3), jnp.int32),
-        pickup_step=jnp.array([[5, 7, -1], [5, -1, -1]]),
-        stage_switch=jnp.array([[True, False, False], [True, False, False]]),
+        valid=np.array([[True, True, False], [True, True, False]]),
+        delivered=np.array([[True, True, False], [True, False, False]]),
+        steps=np.array([[14, 16, 0], [14, 150, 0]]),
+        optimal_steps=np.array([[14, 14, 14], [14, 14, 14]]),
+        episode_return=np.array([[271.5, 270.5, 0.0], [271.5, -75.0, 0.0]]),
+        collisions=np.array([[0, 1, 0], [0, 0, 0]]),
+        wall_bumps=np.zeros((2, 3), np.int32),
+        pickup_step=np.array([[5, 7, -1], [5, -1, -1]]),
+        stage_switch=np.array([[True, False, False], [True, False, False]]),
     )
     m = common.per_seed_metrics(ep)
     np.testing.assert_allclose(m["success_rate"], [1.0, 0.5])
@@ -91,7 +92,7 @@ def test_one_item_params_keeps_shapes_and_rejects_bad_items():
     one = forgetting.one_item_params(params, 4)
     assert one.items.shape == params.items.shape
     assert int(one.num_items) == 1
-    expected = np.broadcast_to(np.asarray(params.items[4]), params.items.shape)
+    expected = np.broadcast_to(np.asarray(params.items)[4], params.items.shape)
     np.testing.assert_array_equal(np.asarray(one.items), expected)
     with pytest.raises(ValueError, match="out of range"):
         forgetting.one_item_params(params, 10)
@@ -106,7 +107,8 @@ def test_segments_really_swap_the_item_and_keep_learning_state():
     seeds = [0, 1]
     # Runners 0-1: randomized items (the full layout); runners 2-3: segmented (one item per segment).
     runners = forgetting.training_init(algo, seeds * 2, full)
-    segment = forgetting.make_segment_fn(algo, full, segment_updates=8)
+    # Shapes, indices, buffer counts and a changed kernel: compiled at LLVM level 0 (tests/fast_compile.py).
+    segment = fast_compile.fast(forgetting.make_segment_fn(algo, full, segment_updates=8))
     clear = jnp.zeros(4, bool)
     for k, item in enumerate([3, 7]):
         one = forgetting.one_item_params(full, item)
@@ -114,23 +116,24 @@ def test_segments_really_swap_the_item_and_keep_learning_state():
         before = runners
         runners, stats, episodes = segment(runners, params, clear, jnp.int32(8 * k))
         # Segmented runners' environments now only hold the segment's item ...
-        seg_items = np.asarray(runners.env_state.item_index[2:])
+        seg_items = np.asarray(runners.env_state.item_index)[2:]  # NumPy indexing: no eager slice programs
         assert np.all(seg_items == 0)  # index 0 of the one-item layout ...
-        np.testing.assert_array_equal(np.asarray(runners.env_state.item_pos[2:]),
-                                      np.broadcast_to(np.asarray(full.items[item]), (2, 4, 2)))  # ... is that cell
-        assert int(runners.env_params.num_items[2]) == 1 and int(runners.env_params.num_items[0]) == 10
+        np.testing.assert_array_equal(np.asarray(runners.env_state.item_pos)[2:],
+                                      np.broadcast_to(np.asarray(full.items)[item], (2, 4, 2)))  # ... is that cell
+        num_items = np.asarray(runners.env_params.num_items)
+        assert int(num_items[2]) == 1 and int(num_items[0]) == 10
         # ... while the randomized ones see several items.
-        assert len({tuple(cell) for cell in np.asarray(runners.env_state.item_pos[:2]).reshape(-1, 2).tolist()}) > 1
+        assert len({tuple(cell) for cell in np.asarray(runners.env_state.item_pos)[:2].reshape(-1, 2).tolist()}) > 1
         # Learning state carries over: the buffer keeps growing, the network changes.
         assert np.all(np.asarray(runners.buffer.size) > np.asarray(before.buffer.size))
         assert episodes.delivered.shape == (4, 10)  # evaluated on every item, not the segment's one
-    kernel_after, kernel_before = jax.tree.leaves(runners.params)[0][2], jax.tree.leaves(before.params)[0][2]
-    assert not np.allclose(np.asarray(kernel_after), np.asarray(kernel_before))
+    kernel_after, kernel_before = (np.asarray(jax.tree.leaves(r.params)[0])[2] for r in (runners, before))
+    assert not np.allclose(kernel_after, kernel_before)
 
     # The same compiled segment (8 updates of one vector step of 4 transitions each), clearing runners 2-3 first.
     cleared = segment(runners, common.stack_trees([full] * 4), jnp.array([False, False, True, True]), jnp.int32(16))[0]
-    assert np.all(np.asarray(cleared.buffer.size[2:]) == 8 * 4)  # emptied, then the segment's 32 transitions
-    assert np.all(np.asarray(cleared.buffer.size[:2]) == np.asarray(runners.buffer.size[:2]) + 8 * 4)
+    assert np.all(np.asarray(cleared.buffer.size)[2:] == 8 * 4)  # emptied, then the segment's 32 transitions
+    assert np.all(np.asarray(cleared.buffer.size)[:2] == np.asarray(runners.buffer.size)[:2] + 8 * 4)
 
 
 # ------------------------------------------------------------- stage-blind env
@@ -138,12 +141,18 @@ def test_stage_blind_observation_hides_the_stage():
     env, params = failure_modes.stage_blind()
     plain, _ = make(ENV_8, observe_carrying=False)
     assert env != plain and env.obs_size == 6
-    obs0, state = env.reset_to_item(1, params)  # item 1 at (1, 3): right x3, down x1
-    for action in (3, 3, 3, 1):
-        obs, state, *_ = env.transition(None, state, action, params)
-    assert bool(state.carrying)
-    np.testing.assert_array_equal(np.asarray(obs[4:6]), np.asarray(obs0[4:6]))  # item coordinates unchanged
-    plain_obs, _, *_ = plain.transition(None, state.replace(carrying=False, pos=jnp.array([1, 2])), 3, params)
+
+    @fast_compile.jit  # one program (eagerly, each operation compiles on its own); grid logic: LLVM level 0
+    def walk():
+        obs0, state = env.reset_to_item(1, params)  # item 1 at (1, 3): right x3, down x1
+        for action in (3, 3, 3, 1):
+            obs, state, *_ = env.transition(None, state, action, params)
+        plain_obs, _, *_ = plain.transition(None, state.replace(carrying=False, pos=jnp.array([1, 2])), 3, params)
+        return obs0, obs, state.carrying, plain_obs
+
+    obs0, obs, carrying, plain_obs = jax.device_get(walk())
+    assert bool(carrying)
+    np.testing.assert_array_equal(obs[4:6], obs0[4:6])  # item coordinates unchanged
     assert float(plain_obs[4]) < 0  # the plain observation blanks them after pickup
 
 

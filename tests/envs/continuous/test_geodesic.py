@@ -65,28 +65,34 @@ def test_routes_keep_their_margin_the_potential_rises_off_them_and_an_enclosed_t
 
 
 def test_everything_but_the_reward_is_the_contracts_and_the_shaping_telescopes(study_12x12):
+    """Both environments reset with one key, then step together from the shaped rollout's state: the resets and every
+    step's observation, next state, flags and info are the contract's bit for bit (so, step by step, a rollout of
+    the contract is the shaped rollout), and the reward differs by the change of potential. One program at the
+    session's level: the two steps' shared work is compiled once."""
     (plain, params), (shaped, shaped_params) = study_12x12
     steps = 120
+    key = jax.random.key(3)
 
-    def rollout(env, p, key):
-        obs, state = env.reset(key, p)
+    @jax.jit
+    def rollout():
+        resets = plain.reset(key, params), shaped.reset(key, shaped_params)
 
         def body(state, t):
             action = jax.random.uniform(jax.random.fold_in(key, t), (2,), minval=-1.0, maxval=1.0)
             action = action.at[0].set(jnp.abs(action[0]))  # mostly forward: the robot travels
             k = jax.random.fold_in(key, 1000 + t)
-            obs, nxt, reward, term, trunc, info = env.step(k, state, action, p)
-            return nxt, (obs, nxt.pos, state.pos, state.carrying, state.item, reward, term | trunc)
+            ours, theirs = shaped.step(k, state, action, shaped_params), plain.step(k, state, action, params)
+            return ours[1], (ours, theirs, state)
 
-        _, trace = jax.lax.scan(body, state, jnp.arange(steps))
-        return trace
+        return resets, jax.lax.scan(body, resets[1][1], jnp.arange(steps))[1]
 
-    key = jax.random.key(3)
-    plain_trace = jax.jit(rollout, static_argnums=0)(plain, params, key)
-    shaped_trace = jax.jit(rollout, static_argnums=0)(shaped, shaped_params, key)
-    for a, b in zip(plain_trace[:5], shaped_trace[:5]):
-        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    obs, after, before, carrying, item, reward, ended = (np.asarray(x) for x in shaped_trace)
+    resets, (ours, theirs, before_state) = jax.device_get(rollout())
+    for a, b in zip(jax.tree.leaves(resets[0]), jax.tree.leaves(resets[1])):
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(jax.tree.leaves((ours[:2], ours[3:])), jax.tree.leaves((theirs[:2], theirs[3:]))):
+        np.testing.assert_array_equal(a, b)
+    after, reward, ended = ours[1].pos, ours[2], ours[3] | ours[4]
+    before, carrying, item = before_state.pos, before_state.carrying, before_state.item
     live = ~ended  # where an episode ended, the carried state is the next episode's start, not the point reached
     assert live.sum() > 50
     # Per step: the shaped reward minus the contract's is shaping_coef * (the potential's change minus Manhattan's).
@@ -96,7 +102,7 @@ def test_everything_but_the_reward_is_the_contracts_and_the_shaping_telescopes(s
     read = jax.jit(jax.vmap(lambda k, p: geodesic.read_field(shaped_params.fields[k], p)))  # eagerly: op by op
     around = np.asarray(read(index, before)) - np.asarray(read(index, after))
     manhattan = np.abs(before - target).sum(-1) - np.abs(after - target).sum(-1)
-    expected = np.asarray(plain_trace[5]) + float(params.shaping_coef) * (around - manhattan)
+    expected = np.asarray(theirs[2]) + float(params.shaping_coef) * (around - manhattan)
     np.testing.assert_allclose(reward[live], expected[live], atol=1e-4)
     assert np.abs(around - manhattan)[live].max() > 0.01  # the two distances really differ on this rollout
 

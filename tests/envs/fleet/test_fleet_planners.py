@@ -243,12 +243,15 @@ def test_pibt_beats_greedy_at_eight_robots():
 
 def test_planner_programs_compile_with_the_classic_emitter_and_count_the_same():
     """``run_episodes`` is compiled with ``planners.compiler_options()`` (on CPU the classic fusion emitter,
-    faster for PIBT's loop); XLA's default options give the same counts, bit for bit."""
+    faster for PIBT's loop); XLA's default options give the same counts, bit for bit.
+
+    The plan command's program below (K = 8, the same shifts and key): one compile serves both tests (the
+    session's compilation cache)."""
     assert planners.compiler_options() == {"xla_cpu_use_fusion_emitters": False}  # the suite runs on CPU
     env, params = make("Fleet-12x12-v0", num_robots=8)
-    key = jax.random.key(11)
-    lowered = metrics.run_episodes.lower(env, params, "pibt", key, 3, 48)
-    mine = jax.device_get(metrics.run_episodes(env, params, "pibt", key, 3, 48))
+    key = jax.random.key(2026)
+    lowered = metrics.run_episodes.lower(env, params, "pibt", key, EPISODES, HORIZON)
+    mine = jax.device_get(metrics.run_episodes(env, params, "pibt", key, EPISODES, HORIZON))
     defaults = jax.device_get(lowered.compile(compiler_options={"xla_cpu_use_fusion_emitters": True})(params, key))
     assert mine["delivered"].sum() > 0
     for name in metrics.COUNTED:
@@ -289,13 +292,14 @@ def test_priorities_are_a_total_order_that_resets_on_reaching_the_target():
 
 
 def test_plan_command_counts_equal_the_recorded_flags(tmp_path):
-    """``python -m wrl_jax.plan`` (vmapped counts, no trajectory) against the recorded shifts of the same keys."""
+    """``python -m wrl_jax.plan`` (vmapped counts, no trajectory) against the recorded shifts of the same keys
+    (K = 8: the emitter test's program, and the recorded shifts the move-for-move test replays)."""
     out = tmp_path / "pibt.json"
-    argv = ["--planner", "pibt", "--num-robots", "2", "--episodes", str(EPISODES), "--seed", "2026",
+    argv = ["--planner", "pibt", "--num-robots", "8", "--episodes", str(EPISODES), "--seed", "2026",
             "--json", str(out), "--xla-opt-level", "-1"]
     assert plan.main(argv) == 0
     report = json.loads(out.read_text())
-    _, _, steps = episodes(2, "pibt")
+    _, _, steps = episodes(8, "pibt")
     np.testing.assert_allclose(report["throughput"]["per_episode"],
                                steps.flags["delivered"].sum(axis=(1, 2)) / HORIZON)
     names = {"delivered": "deliveries", "shelf_hit": "shelf_hits", "wall_bump": "wall_bumps",
@@ -304,7 +308,7 @@ def test_plan_command_counts_equal_the_recorded_flags(tmp_path):
         np.testing.assert_allclose(report["per_robot"][name], steps.flags[flag].sum(axis=1).mean(axis=0), err_msg=name)
     tp = report["throughput"]
     assert tp["ci95"][0] < tp["mean"] < tp["ci95"][1]
-    assert report["upper_bound"]["throughput"] == pytest.approx(2 / mean_round_trip_here())
+    assert report["upper_bound"]["throughput"] == pytest.approx(8 / mean_round_trip_here())
     assert 0.5 < report["upper_bound"]["fraction"] < 1.1
 
 

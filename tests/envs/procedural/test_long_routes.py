@@ -4,9 +4,13 @@ One batch per family (and one of the training mixture, the yardstick) is generat
 once for the module; distances come from a NumPy BFS (a batched one here, checked against
 ``wrl_jax.envs.warehouse.layout.bfs_distances``), independent of the JAX flood fill.
 
-Every batch and every family's drawn floors come out of ONE program (``_program``), compiled at LLVM level 0
-(``fast_compile``: generation is integer logic; four programs at the session's level cost twice as much to
-compile); the same-key test runs that program again.
+Every long family's batch and drawn floors come out of ONE program (``_program``), compiled at LLVM level 0
+(``fast_compile``: three programs at the session's level cost twice as much to compile). Level 0 suits them:
+the layouts are checked for validity, connectivity and route lengths, never bit for bit against a program at
+the session's level (generation draws a few fractions in float32, which another level may round otherwise);
+the same-key test runs that program again, the determinism a user relies on. The mixture's batch, on the same keys, comes from the
+default generator's 64-layout pool program in chunks (``_mixture``): the program of the other procedural
+modules' 64-layout pools, which the session's cache serves.
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ from wrl_jax.envs.procedural import layout_sets
 from wrl_jax.envs.procedural.draws import HEADER_WORDS, cell_words
 from wrl_jax.envs.procedural.layout import stack
 from wrl_jax.envs.procedural.layout_sets import study_layout
-from wrl_jax.envs.procedural.pool import pool_hashes
+from wrl_jax.envs.procedural.pool import pool_from_keys, pool_hashes
 from wrl_jax.envs.procedural.route_floors import long_floor_size
 from wrl_jax.envs.warehouse.layout import bfs_distances
 
@@ -45,15 +49,28 @@ def _floors(key, family):
 
 @fast_compile.jit
 def _program(keys, floor_key):
-    """``({family: (layouts, attempts)}, {long family: floors})``: a batch per family (the mixture too), one
-    layout per key, and each long family's drawn floors."""
+    """``({long family: (layouts, attempts)}, {long family: floors})``: a batch per long family, one layout per
+    key, and each long family's drawn floors."""
     batches = {family: jax.vmap(gen.generate_with_attempts, in_axes=(0, None))(keys, gen.GeneratorConfig(family=family))
-               for family in ("mixture", *LONG)}
+               for family in LONG}
     return batches, {family: _floors(floor_key, family) for family in LONG}
 
 
+def _keys():
+    return jax.random.split(jax.random.key(33), NUM_LAYOUTS)
+
+
 def _run():
-    return jax.tree.map(np.asarray, _program(jax.random.split(jax.random.key(33), NUM_LAYOUTS), jax.random.key(5)))
+    return jax.tree.map(np.asarray, _program(_keys(), jax.random.key(5)))
+
+
+def _mixture(keys, chunk=64):
+    """The training mixture's layouts, one per key, as NumPy: ``pool_from_keys`` of the default generator on
+    chunks of 64 keys (the 64-layout pool program every procedural module compiles; each key's layout is
+    drawn alone under ``vmap``, as in one batch of all the keys)."""
+    parts = [pool_from_keys(keys[start:start + chunk], gen.GeneratorConfig()).layouts
+             for start in range(0, len(keys), chunk)]
+    return jax.tree.map(lambda *leaves: np.concatenate([np.asarray(leaf) for leaf in leaves]), *parts)
 
 
 def numpy_bfs(blocked: np.ndarray, sources: np.ndarray) -> np.ndarray:
@@ -84,9 +101,11 @@ def generated():
 
 @pytest.fixture(scope="module")
 def batches(generated):
-    """``{family: (layouts as NumPy, attempts, from_start, from_goal)}`` for the long families and the mixture."""
+    """``{family: (layouts as NumPy, attempts, from_start, from_goal)}`` for the long families and the mixture
+    (its attempts ``None``: no test reads them)."""
+    drawn = {"mixture": (_mixture(_keys()), None), **generated[0]}
     return {family: (layouts, attempts, numpy_bfs(layouts.blocked, layouts.start),
-                     numpy_bfs(layouts.blocked, layouts.goal)) for family, (layouts, attempts) in generated[0].items()}
+                     numpy_bfs(layouts.blocked, layouts.goal)) for family, (layouts, attempts) in drawn.items()}
 
 
 def _item_distances(layouts, from_start, from_goal):
@@ -197,8 +216,8 @@ def test_ood_sets_hold_the_long_route_sets_unless_told_not_to_and_build_only_tho
     dense_key = jax.random.fold_in(jax.random.fold_in(jax.random.key(layout_sets.EVAL_SEED), 3), 0)
     assert calls[0][2] == tuple(np.asarray(jax.random.key_data(dense_key)).tolist())
     # At min_shape = max_shape the long-route floors fill the maximum shape.
-    headers = jax.random.bits(jax.random.key(1), (8, HEADER_WORDS), jnp.uint32)
-    height, width = jax.vmap(lambda h: long_floor_size(h, configs["spiral"]))(headers)
+    height, width = jax.jit(lambda key: jax.vmap(lambda h: long_floor_size(h, configs["spiral"]))(  # one program
+        jax.random.bits(key, (8, HEADER_WORDS), jnp.uint32)))(jax.random.key(1))
     assert (np.asarray(height) == 16).all() and (np.asarray(width) == 16).all()
     calls.clear()
     without = [s.name for s in layout_sets.ood_sets(generator, 16, long_routes=False)]

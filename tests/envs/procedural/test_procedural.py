@@ -122,15 +122,15 @@ def test_every_layout_is_solvable_by_numpy(numpy_pool):
         np.testing.assert_array_equal(optimal[index][: len(items)], expected)
 
 
-def test_jax_solvability_check_agrees(pool):
-    first = _slot(pool.layouts, 0)
-    goal = np.asarray(first.goal)
-    walled = np.asarray(first.blocked).copy()
+def test_jax_solvability_check_agrees(numpy_pool):
+    first = _slot(numpy_pool.layouts, 0)  # NumPy: no eager JAX operation (each would compile a program)
+    goal = first.goal
+    walled = first.blocked.copy()
     for d_row, d_col in ((-1, 0), (1, 0), (0, -1), (0, 1)):
         row, col = goal[0] + d_row, goal[1] + d_col
         if 0 <= row < 16 and 0 <= col < 16:
             walled[row, col] = True
-    batch = jax.tree.map(lambda *leaves: jnp.stack(leaves), first, first.replace(blocked=jnp.asarray(walled)))
+    batch = jax.tree.map(lambda *leaves: np.stack(leaves), first, first.replace(blocked=walled))
     assert jax.jit(jax.vmap(is_solvable))(batch).tolist() == [True, False]
 
 
@@ -198,18 +198,21 @@ def test_bad_generator_config_is_a_clear_error():
 
 
 # ---------------------------------------------------------------- hashing, held-out, pools
-def test_layout_hash_sees_every_field_but_not_the_padding(pool):
-    layout = _slot(pool.layouts, 0)
+def test_layout_hash_sees_every_field_but_not_the_padding(numpy_pool):
+    layout = _slot(numpy_pool.layouts, 0)  # the variants built in NumPy: no eager JAX operation
     count = int(layout.num_items)
+    blocked, padding = layout.blocked.copy(), layout.items.copy()
+    blocked[layout.start[0], layout.start[1]] = True
+    padding[count:] = 5
     variants = [
         layout,
         layout.replace(start=layout.goal, goal=layout.start),
         layout.replace(items=layout.items[::-1]),
-        layout.replace(num_items=jnp.int32(count - 1 if count > 1 else count + 1)),
-        layout.replace(blocked=layout.blocked.at[int(layout.start[0]), int(layout.start[1])].set(True)),
-        layout.replace(items=layout.items.at[count:].set(jnp.array([5, 5], jnp.int32))),  # padding only
+        layout.replace(num_items=np.int32(count - 1 if count > 1 else count + 1)),
+        layout.replace(blocked=blocked),
+        layout.replace(items=padding),  # padding only
     ]
-    hashes = pool_hashes(jax.tree.map(lambda *leaves: jnp.stack(leaves), *variants))
+    hashes = pool_hashes(jax.tree.map(lambda *leaves: np.stack(leaves), *variants))
     assert len(set(hashes[:5].tolist())) == 5 and hashes[5] == hashes[0]
 
 
@@ -335,7 +338,6 @@ def test_dynamics_match_the_study_env_on_the_padded_12x12_map():
     layout = parse(maps.WAREHOUSE_12X12)
     env, params = make_from_layouts([from_layout(layout, (16, 16), 20)], max_steps=300)
     study, study_params = make("Warehouse-12x12-v0")
-    actions = jax.random.randint(jax.random.key(0), (20, 300), 0, 4)
 
     def ours(item, acts):
         def one(state, action):
@@ -351,9 +353,12 @@ def test_dynamics_match_the_study_env_on_the_padded_12x12_map():
                            info["picked_up"], info["delivered"])
         return jax.lax.scan(one, study.reset_to_item(item, study_params)[1], acts)[1]
 
-    items = jnp.arange(20)
-    a, b = jax.jit(lambda items, actions: (jax.vmap(ours)(items, actions), jax.vmap(theirs)(items, actions)))(
-        items, actions)
+    @jax.jit
+    def both(key):  # the random actions drawn in the program too (drawn eagerly, they compile programs of their own)
+        items, actions = jnp.arange(20), jax.random.randint(key, (20, 300), 0, 4)
+        return jax.vmap(ours)(items, actions), jax.vmap(theirs)(items, actions)
+
+    a, b = both(jax.random.key(0))
     for x, y in zip(a, b):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     assert np.asarray(a[5]).any() and np.asarray(a[4]).any()  # wall bumps at the padded edge, collisions
@@ -367,14 +372,13 @@ def test_bfs_shaping_rewards_the_change_of_the_numpy_bfs_distance():
     slots, items = np.meshgrid(np.arange(6), np.arange(2), indexing="ij")  # 6 slots, 2 items each
     slots, items = slots.reshape(-1), items.reshape(-1)
     # Toward the target by Manhattan on 70 % of the steps (so items get picked up and delivered), else random.
-    actions = jax.random.randint(jax.random.key(4), (slots.size, 120), 0, 4)
-    greedy = jax.random.bernoulli(jax.random.key(5), 0.7, actions.shape)
+    steps = 120
 
     def toward(state):
         delta = jnp.where(state.carrying, state.goal, state.item_pos) - state.pos
         return jnp.where(delta[0] != 0, jnp.where(delta[0] > 0, 1, 0), jnp.where(delta[1] > 0, 3, 2))
 
-    def run(env, params):
+    def run(env, params, actions, greedy):
         def episode(slot, item, acts, coins):
             def one(state, step):
                 action = jnp.where(step[1], toward(state), step[0])
@@ -384,8 +388,13 @@ def test_bfs_shaping_rewards_the_change_of_the_numpy_bfs_distance():
             return jax.lax.scan(one, env.reset_to(slot, item, params)[1], (acts, coins))[1]
         return jax.vmap(episode)(jnp.asarray(slots), jnp.asarray(items), actions, greedy)
 
-    shaped, plain = jax.jit(lambda params, plain_params: (run(env, params), run(plain_env, plain_params)))(
-        params, plain_params)  # both envs in one program
+    @jax.jit
+    def both(params, plain_params):  # both envs and the random draws in one program
+        actions = jax.random.randint(jax.random.key(4), (slots.size, steps), 0, 4)
+        greedy = jax.random.bernoulli(jax.random.key(5), 0.7, actions.shape)
+        return run(env, params, actions, greedy), run(plain_env, plain_params, actions, greedy)
+
+    shaped, plain = both(params, plain_params)
     pos, next_pos, carrying, reward, collision, picked_up, delivered = map(np.asarray, shaped)
     np.testing.assert_array_equal(next_pos, np.asarray(plain[1]))  # the dynamics do not change
     layouts = jax.tree.map(np.asarray, params.pool.layouts)
@@ -394,7 +403,7 @@ def test_bfs_shaping_rewards_the_change_of_the_numpy_bfs_distance():
         blocked = np.asarray(layouts.blocked[slot])
         to_item = bfs_distances(blocked, tuple(np.asarray(layouts.items[slot, item])))
         to_goal = bfs_distances(blocked, tuple(np.asarray(layouts.goal[slot])))
-        for t in range(actions.shape[1]):
+        for t in range(steps):
             table = to_goal if carrying[e, t] else to_item
             change = int(table[tuple(pos[e, t])]) - int(table[tuple(next_pos[e, t])])
             target = np.asarray(layouts.goal[slot] if carrying[e, t] else layouts.items[slot, item])
@@ -596,23 +605,36 @@ def _rays_probe(env, params, plain_env, key):
 def window_runs():
     """``{radius: (env, params, probe outputs)}`` of the bit-mask test, and ``{radius: (rays env, params, plain env,
     outputs)}`` of the rays test: every radius of both tests in ONE jitted program (six programs apart cost twice
-    as much to compile); each test reads its radius."""
-    plain = {radius: make_procedural(**WINDOW_POOL, view_radius=radius) for radius in WINDOW_RADII}
-    rays = {radius: make_procedural(**WINDOW_POOL, view_radius=radius, observe_rays=True) for radius in RAY_RADII}
+    as much to compile); each test reads its radius. One pool serves them all (``make_procedural``'s at radius
+    2); the other environments' params (walls, reset table: the package's ``with_pool``) are computed inside the
+    program too, not in a program per environment."""
+    base_env, base = make_procedural(**WINDOW_POOL, view_radius=2)
+
+    def env_of(radius, rays=False):
+        return ProceduralWarehouse(generator=base_env.generator, pool_size=HELDOUT, view_radius=radius, pool_seed=0,
+                                   observe_rays=rays)
+
+    plain = {radius: env_of(radius) for radius in WINDOW_RADII}
+    rays = {radius: env_of(radius, rays=True) for radius in RAY_RADII}
 
     @jax.jit
-    def program(plain_params, rays_params, window_keys, ray_keys):
-        windows = {radius: jax.vmap(partial(_window_probe, plain[radius][0], plain_params[radius], radius))(
+    def program(base, window_keys, ray_keys):
+        plain_params = {radius: base if radius == 2 else env.with_pool(base, base.pool)
+                        for radius, env in plain.items()}
+        rays_params = {radius: env.with_pool(base, base.pool) for radius, env in rays.items()}
+        windows = {radius: jax.vmap(partial(_window_probe, plain[radius], plain_params[radius], radius))(
             window_keys) for radius in WINDOW_RADII}
-        walks = {radius: jax.vmap(partial(_rays_probe, rays[radius][0], rays_params[radius], plain[radius][0]))(
+        walks = {radius: jax.vmap(partial(_rays_probe, rays[radius], rays_params[radius], plain[radius]))(
             ray_keys) for radius in RAY_RADII}
-        return windows, walks
+        return plain_params, rays_params, windows, walks
 
-    windows, walks = program({radius: params for radius, (_, params) in plain.items()},
-                             {radius: params for radius, (_, params) in rays.items()},
-                             jax.random.split(jax.random.key(3), 4000), jax.random.split(jax.random.key(5), 500))
-    return ({radius: (*plain[radius], windows[radius]) for radius in WINDOW_RADII},
-            {radius: (*rays[radius], plain[radius][0], walks[radius]) for radius in RAY_RADII})
+    plain_params, rays_params, windows, walks = program(base, jax.random.split(jax.random.key(3), 4000),
+                                                        jax.random.split(jax.random.key(5), 500))
+    for envs, params in ((plain, plain_params), (rays, rays_params)):
+        for radius, env in envs.items():
+            env.check_params(params[radius])
+    return ({radius: (plain[radius], plain_params[radius], windows[radius]) for radius in WINDOW_RADII},
+            {radius: (rays[radius], rays_params[radius], plain[radius], walks[radius]) for radius in RAY_RADII})
 
 
 @pytest.mark.parametrize("view_radius", WINDOW_RADII)
@@ -812,7 +834,8 @@ def test_greedy_evaluation_on_heldout_layouts(lean_env_and_params):
         rows_first = (network_params == 0) & (d_row != 0) | (d_col == 0)
         return jnp.where(rows_first, vertical, horizontal).astype(jnp.int32)
 
-    result = jax.jit(lambda p: evaluation.evaluate_seeds(greedy, jnp.arange(2), env, p))(
+    # LLVM level 0 (fast_compile): the assertions compare the run with itself and with the BFS optimum only.
+    result = fast_compile.jit(lambda p: evaluation.evaluate_seeds(greedy, jnp.arange(2), env, p))(
         params.replace(max_steps=jnp.int32(200)))
     result = jax.tree.map(np.asarray, result)
     assert result.delivered.shape == (2, 64, CONFIG.max_items)
@@ -927,7 +950,7 @@ def test_final_report_measures_heldout_and_ood_sets(lean_env_and_params, ood, mo
     assert f"final: {HELDOUT} held-out layouts" in headline and "final, sampled policy: delivered / excess" in headline
 
 
-def test_final_sets_agree_with_the_periodic_evaluation_and_drop_training_layouts(lean_env_and_params):
+def test_final_sets_drop_training_layouts_and_sample_episodes(lean_env_and_params):
     """The held-out set's hash check, sampled episodes, refusals. (That one batch over sets equals each pool
     evaluated alone is checked on the final report's own batch, in the test above; the ``overall`` row, the
     sum of the sets', by tests/cli/test_procedural_cli.py's evaluation on layout files.)"""
