@@ -79,27 +79,37 @@ def test_gymnax_learns_our_names_whichever_is_imported_first():
     )
     assert done.returncode == 0, done.stderr
     done = _python(
-        "import wrl_jax\n"
-        "wrl_jax.make('Warehouse-8x8-v0')\n"
+        "import sys, wrl_jax\n"
+        "env, params = wrl_jax.make('Warehouse-8x8-v0')\n"
+        # the environment loaded gymnax's base modules alone, not gymnax's environments (seaborn, scipy...)
+        "assert 'gymnax.environments.environment' in sys.modules\n"
+        "assert not {'gymnax', 'gymnax.environments', 'seaborn'} & set(sys.modules)\n"
         "import gymnax\n"
         "assert gymnax.make('wrl_jax/Warehouse-12x12-v0')[0].name == 'Warehouse-12x12-v0'\n"
+        "assert isinstance(env, gymnax.environments.environment.Environment)\n"  # one base class, whoever came first
+        "assert env.action_space(params).__class__ is gymnax.environments.spaces.Discrete\n"
+        "assert gymnax.make('CartPole-v1')[0].name == 'CartPole-v1'\n"
     )
     assert done.returncode == 0, done.stderr
 
 
-def test_a_broken_gymnax_corner_gives_a_clear_error_and_leaves_the_import():
-    # As on a machine where six is missing: `import gymnax` fails inside one of gymnax's own environments.
+def test_a_broken_gymnax_corner_leaves_the_environments_and_registering_names_it():
+    # As on a machine where six is missing: `import gymnax` fails inside one of gymnax's own environments,
+    # which wrl_jax's environments do not load; registering with gymnax imports it, and says what is missing.
     done = _python(
         "import sys\n"
         "sys.modules['six'] = None\n"
         "import wrl_jax\n"
         "assert 'Warehouse-8x8-v0' in wrl_jax.registered_names()\n"
-        "wrl_jax.make('Warehouse-8x8-v0')\n"
+        "env, params = wrl_jax.make('Warehouse-8x8-v0')\n"
+        "import jax\n"
+        "env.reset(jax.random.key(0), params)\n"
+        "wrl_jax.register_with_gymnax()\n"
     )
     assert done.returncode != 0
     message = done.stderr.strip().splitlines()[-1]
-    assert message.startswith("ImportError: wrl_jax's environments are gymnax environments, and `import gymnax` failed")
-    assert "pip install six" in message and "make install" in message
+    assert message.startswith("ImportError: wrl_jax registers its environments with gymnax, and `import gymnax` failed")
+    assert "`pip install six`" in message and "make install" in message
 
 
 @pytest.mark.parametrize("name", ["SPEC.md", "FLEET_SPEC.md", "CONTINUOUS_SPEC.md"])

@@ -5,21 +5,21 @@ environment (``wrl_jax.registered_names()``; the list is :mod:`wrl_jax.envs`).
 Every environment is a gymnax 1.0 ``Environment`` (:mod:`wrl_jax.core.environment`).
 
 ``import wrl_jax`` registers the built-in names (with wrl_jax, Gymnasium, and gymnax
-if gymnax is already imported) and does nothing else: it imports neither JAX nor
-gymnax, so a command can still set XLA's flags or start distributed JAX after it.
+now if it is loaded, else when it is imported) and does nothing else: it imports
+neither JAX nor gymnax, so a command can still set XLA's flags or start distributed
+JAX after it.
 The other names below load their modules on first use.
 """
 
 import importlib
-import sys
 
 import wrl_jax.envs  # noqa: F401  (registers the built-in names)
 from wrl_jax.core.registry import make, register_with_gymnax, registered_names  # noqa: F401  (in __all__)
+from wrl_jax.core.registry import register_with_gymnax_when_imported
 from wrl_jax.wrappers.registration import register_gymnasium_envs
 
 register_gymnasium_envs()
-if "gymnax" in sys.modules:  # gymnax is loaded (and JAX started) anyway: add our names to its registry now.
-    register_with_gymnax()
+register_with_gymnax_when_imported()  # now if gymnax is loaded, else when it is imported
 
 # Public name -> the module that defines it, imported on first access (PEP 562).
 _LAZY = {

@@ -36,11 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from wrl_jax.core import registry
 from wrl_jax.core.gymnax_base import gymnax_environment
-
-# gymnax is loaded now (and JAX started): it learns every wrl_jax name.
-registry.register_with_gymnax()
 
 StateT = TypeVar("StateT")
 ParamsT = TypeVar("ParamsT")

@@ -3,13 +3,14 @@
 A family registers each of its named environments once, with a factory
 ``factory(**overrides) -> (env, params)`` given as a ``"module:function"``
 path, so nothing is imported until a name is made. Every name is also
-registered with gymnax's own registry as ``"wrl_jax/<name>"``, but only once
-gymnax is imported: ``import gymnax`` imports every gymnax environment and
-starts JAX's backend, which ``import wrl_jax`` must not do (a broken corner of
-gymnax would take the whole package down, and XLA's flags could no longer be
-set). :func:`register_with_gymnax` runs when wrl_jax first imports gymnax
-(:mod:`wrl_jax.core.environment`, through :mod:`wrl_jax.core.gymnax_base`) and on
-``import wrl_jax`` if gymnax is already loaded; gymnax refuses an id twice, so it checks first.
+registered with gymnax's own registry as ``"wrl_jax/<name>"``, once gymnax
+is loaded: ``import gymnax`` imports every gymnax environment and starts JAX's
+backend, which ``import wrl_jax`` must not do (a broken corner of gymnax would
+take the whole package down, and XLA's flags could no longer be set), and
+wrl_jax's environments load only gymnax's base modules. So ``import wrl_jax``
+registers with gymnax if it is loaded, else installs a one-shot hook that does
+it when gymnax is imported (:func:`register_with_gymnax_when_imported`), in
+whichever order the two come; gymnax refuses an id twice, so it checks first.
 
 The one place that lists the built-in names is :mod:`wrl_jax.envs`.
 """
@@ -19,6 +20,9 @@ from __future__ import annotations
 import dataclasses
 import functools
 import importlib
+import importlib.abc
+import importlib.util
+import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -116,13 +120,69 @@ def register_with_gymnax() -> list[str]:
     Imports gymnax. Names registered later are added as they come.
     """
     global _GYMNAX_REGISTERED
-    from wrl_jax.core.gymnax_base import gymnax
+    from wrl_jax.core.gymnax_base import import_gymnax
 
+    gymnax = import_gymnax()
     for name in _REGISTRY:
         if GYMNAX_PREFIX + name not in gymnax.registered_envs:
             gymnax.register(GYMNAX_PREFIX + name, functools.partial(_make_env_only, name))
     _GYMNAX_REGISTERED = True
     return [GYMNAX_PREFIX + name for name in _REGISTRY]
+
+
+def register_with_gymnax_when_imported() -> None:
+    """Register with gymnax now if it is loaded, else as soon as anyone imports it.
+
+    ``import wrl_jax`` must not import gymnax (it starts JAX), and wrl_jax's environments load
+    only gymnax's base modules (:mod:`wrl_jax.core.gymnax_base`). So the names reach gymnax's
+    registry through a one-shot import hook: the first ``import gymnax`` runs gymnax's package as
+    usual, then :func:`_finish_gymnax`.
+    """
+    if "gymnax" in sys.modules:
+        _finish_gymnax()
+    elif not any(isinstance(finder, _GymnaxImportHook) for finder in sys.meta_path):
+        sys.meta_path.insert(0, _GymnaxImportHook())
+
+
+def _finish_gymnax() -> None:
+    """gymnax's package is loaded: bind the base modules wrl_jax loaded on its own as the attributes they
+    would have been (``gymnax.environments.spaces``), and register our names."""
+    environments = sys.modules.get("gymnax.environments")
+    for name in ("environment", "spaces"):
+        module = sys.modules.get(f"gymnax.environments.{name}")
+        if environments is not None and module is not None and not hasattr(environments, name):
+            setattr(environments, name, module)
+    register_with_gymnax()
+
+
+class _GymnaxImportHook(importlib.abc.MetaPathFinder):
+    """Finds gymnax with the other finders, and has :func:`_finish_gymnax` run once its package has run."""
+
+    def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> Any:
+        if fullname != "gymnax":
+            return None
+        sys.meta_path.remove(self)  # one shot, and the lookup below must not find this finder again
+        spec = importlib.util.find_spec(fullname)
+        if spec is not None and spec.loader is not None:
+            spec.loader = _ThenFinishGymnax(spec.loader)
+        return spec
+
+
+class _ThenFinishGymnax(importlib.abc.Loader):
+    """gymnax's own loader, with :func:`_finish_gymnax` after the package's code has run."""
+
+    def __init__(self, loader: Any):
+        self._loader = loader
+
+    def create_module(self, spec: Any) -> Any:
+        return self._loader.create_module(spec)
+
+    def exec_module(self, module: Any) -> None:
+        self._loader.exec_module(module)
+        _finish_gymnax()
+
+    def __getattr__(self, name: str) -> Any:  # get_resource_reader, is_package...: gymnax's loader's own
+        return getattr(self._loader, name)
 
 
 def _make_env_only(name: str, **overrides: Any) -> Any:
