@@ -295,7 +295,8 @@ def test_ppo_gaussian_policy_learns_the_corridor(ppo_run, evaluations):
 
 def test_sac_chunks_and_resume_give_the_same_bits(sac_run, tmp_path):
     """The off-policy loop through the driver: chunks of 250 updates and a resume from a checkpoint give ``sac_run``'s
-    run in one chunk of 1,000 bit for bit (the replay buffer, the targets and the temperature are in the checkpoint)."""
+    run in one chunk of 1,000 bit for bit (the replay buffer, the targets and the temperature are in the checkpoint).
+    The resumed run is both: a first chunk of 250, then three more from the checkpoint."""
     algo, start, whole, _, _ = sac_run
     assert algo.num_updates == 1000
     in_pieces = training.Trainer(algo, SEEDS, training.LoopConfig(chunk_updates=250, eval_every=0, progress=False))
@@ -305,8 +306,7 @@ def test_sac_chunks_and_resume_give_the_same_bits(sac_run, tmp_path):
         return len(leaves_a) == len(leaves_b) and all(
             np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(leaves_a, leaves_b))
 
-    pieces = training.run(in_pieces, runners=start)  # sac_run's start: one init program for both trainers
-    assert pieces.updates_done == 1000 and same(pieces.runners, whole)
+    # sac_run's start: one init program for both trainers.
     meta = {"algo": "sac", "config": {"note": "test"}}
     first = training.run(in_pieces, tmp_path, metadata=meta, stop_after=250, runners=start)
     assert first.updates_done == 250 and not first.finished
