@@ -20,14 +20,15 @@ if _OWNS_CACHE:
     os.environ["WRL_TEST_CACHE_OWNER"] = str(os.getpid())
 # Cache every program that took a fifth of a second or more to compile (JAX's default is 1 s).
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
-# The commands' XLA settings (wrl_jax.cli.machine: LLVM level 1, the classic fusion emitter) in the test
-# processes too: about half the compile time of XLA's defaults (most test programs run for milliseconds,
-# and compiling is most of what the suite does), and the same compiled programs as the CLI subprocesses,
-# which inherit XLA_FLAGS, so the cache serves both.
+# The commands' XLA settings (wrl_jax.cli.machine: the classic fusion emitter) at LLVM level 0 instead of the
+# commands' 1: most test programs run for milliseconds, compiling is most of what the suite does, and level 0
+# compiles in about half the time. The CLI subprocesses inherit XLA_FLAGS, so the cache serves both. Tests whose
+# claims are about level-1 programs run at level 1 in a process of their own (tests/commands_level.py);
+# `WRL_TEST_XLA_LEVEL=1 pytest` runs the whole session at the commands' level.
 from wrl_jax.cli import machine  # noqa: E402  (imports no JAX: XLA_FLAGS still count)
 
 os.environ["XLA_FLAGS"] = machine.xla_flags_with_defaults(os.environ.get("XLA_FLAGS", ""),
-                                                          machine.DEFAULT_XLA_OPT_LEVEL)
+                                                          int(os.environ.get("WRL_TEST_XLA_LEVEL", "0")))
 
 import pytest  # noqa: E402
 

@@ -1,16 +1,18 @@
 """Tests' own programs compiled at XLA's CPU LLVM optimization level 0, for runs where compiling is their time.
 
 Many tests run a program for a few steps (a parity run of 30 to 200 steps, a batch of crowds, a few
-evaluation episodes), so compiling is nearly all of their time. The session's setting
-(``tests/conftest.py``: LLVM level 1, the commands' setting) compiles a transition of 19 rware agents
-in about 2.7 s of CPU; level 0 in about 1 s, and runs it a few times slower, which such runs do not
-feel. The level only changes how LLVM optimizes the machine code, not the program XLA builds.
+evaluation episodes), so compiling is nearly all of their time. The commands' setting (LLVM level 1)
+compiles a transition of 19 rware agents in about 2.7 s of CPU; level 0 in about 1 s, and runs it a
+few times slower, which such runs do not feel. The level only changes how LLVM optimizes the machine
+code, not the program XLA builds. The session itself compiles at level 0 (``tests/conftest.py``), so
+these programs differ from the others only when a session runs at the commands' level
+(``WRL_TEST_XLA_LEVEL=1``): they stay at 0 there, where level 1 would only be slower.
 
 When it is safe: integer logic and exact float operations (rware's positions, requests and 0/1
 rewards; the grid warehouse) give the same results at any level, so exact comparisons still hold.
 Float programs may round differently at another level (a fused multiply-add here and not there): a
 test of float results at level 0 may compare with a tolerance, or with a reference, but never claims
-bit-identity with a program the package compiles at the session's level (those tests keep it).
+bit-identity with a program the package compiles at another level (``tests/commands_level.py``).
 
 :func:`jit` is ``jax.jit`` with that compile option, for the tests' own programs; :func:`fast` compiles
 a jitted function of the package (``scripted.team_episodes``, say) the same way, calling it inside
@@ -24,7 +26,7 @@ import functools
 import jax
 
 FAST_COMPILE = {"xla_backend_optimization_level": 0}
-"""Per-program XLA options (``jax.jit(..., compiler_options=...)``): LLVM level 0 instead of the session's 1."""
+"""Per-program XLA options (``jax.jit(..., compiler_options=...)``): LLVM level 0, whatever the session's level."""
 
 
 def jit(fun=None, **kwargs):

@@ -8,7 +8,7 @@ correlated-exploration test). The nine learned actors (SAC's, TD3's and PPO's, t
 one program (``evaluations``: the corridor's episodes traced and compiled once, each row acting with its own
 algorithm's greedy action). Programs whose results are only compared with thresholds (TD3's and PPO's learning
 runs, the evaluation, the correlated collection) compile at LLVM level 0 (``fast_compile``); SAC's training,
-whose bits are compared, at the session's level.
+whose bits are compared with its own chunked and resumed runs, at the session's level (tests/conftest.py).
 """
 
 from __future__ import annotations

@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import commands_level
 import fast_compile
 
 import wrl_jax
@@ -35,6 +36,7 @@ PRESET_8X8_BUDGET = 102_400  # 50 updates of the default preset's 64 x 32 batch
 
 
 @pytest.mark.slow
+@commands_level.at_commands_level  # a claim about level-1 programs (tests/commands_level.py)
 def test_default_preset_learns_8x8_on_fresh_seeds():
     """The ``default`` preset itself (only its budget shrunk) puts every item of 8x8 at the
     BFS optimum, with no collision, on every one of 8 fresh seeds.

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -30,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import commands_level
 
 from wrl_jax.training import sharding
 
@@ -154,7 +156,11 @@ again."""
 def run_with_two_devices(*bodies: str) -> dict:
     """Run the prelude, then ``bodies`` in one Python process with 2 CPU devices; their ``out`` as a dict."""
     env = dict(os.environ)
-    env["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2 " + os.environ.get("XLA_FLAGS", "")
+    # At the commands' LLVM level, not the session's 0: the bit-for-bit claims are about the programs as the commands
+    # compile them (tests/commands_level.py), and the --devices 2 command below loads these programs from the cache.
+    flags = re.sub(r"--xla_backend_optimization_level=-?\d+", "", os.environ.get("XLA_FLAGS", ""))
+    env["XLA_FLAGS"] = (f"--xla_force_host_platform_device_count=2 --xla_backend_optimization_level="
+                        f"{commands_level.COMMANDS_LEVEL} {flags}")
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     source = textwrap.dedent(PRELUDE) + "".join(textwrap.dedent(b) for b in bodies)
     proc = subprocess.run(

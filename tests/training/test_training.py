@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import commands_level
 
 import wrl_jax
 from wrl_jax import training
@@ -76,6 +77,7 @@ def test_chunk_size_does_not_change_results(chunked, reference):
     assert result.convergence.to_json() == ref.convergence.to_json()
 
 
+@commands_level.at_commands_level  # a claim about level-1 programs (tests/commands_level.py)
 def test_make_train_matches_the_chunked_driver(algo, reference):
     _, ref = reference
     runner, metrics = jax.jit(make_train_seeds(algo))(training.seed_keys(SEEDS))

@@ -14,6 +14,7 @@ import gymnasium as gym
 import jax
 import numpy as np
 import pytest
+import commands_level
 
 import wrl_jax  # noqa: F401  (registers the Gymnasium ids)
 from wrl_jax.wrappers.gymnasium_continuous import ContinuousGymEnv
@@ -35,6 +36,7 @@ def test_gymnasium_env_checker(env_id, kwargs):
     assert env.observation_space.shape == (11 + 32 + (8 if kwargs else 0),)
 
 
+@commands_level.at_commands_level  # a claim about level-1 programs (tests/commands_level.py)
 def test_adapter_is_the_jax_transition_step_by_step():
     env = ContinuousGymEnv("Continuous-Warehouse-12x12-Dynamic-v0", **DYNAMIC_12X12)
     jax_env, params = env.jax_env, env.params

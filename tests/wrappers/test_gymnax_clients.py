@@ -12,7 +12,7 @@
 
 Budgets are seconds of training; most of the wall time is XLA compiling the
 training programs, so they compile at LLVM level 0 (``fast_compile``: no claim here is about bits, and the
-learning margins hold there as at the session's level).
+learning margins hold there as at level 1).
 """
 
 from __future__ import annotations

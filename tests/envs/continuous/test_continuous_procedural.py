@@ -2,9 +2,10 @@
 
 One small environment (32 layouts of 8x8..12x12, 8 rays, 2 moving obstacles, randomized, 40 steps) serves
 most tests, so the file compiles few programs. Programs whose results are compared with tolerances or thresholds
-compile at LLVM level 0 (``fast_compile``: the padding comparison, the evaluation, SAC's updates); the others at
-the session's level (the batched rollout: its bounds and collision-free starts are exact at that level, where a
-start can lie within rounding of a shelf).
+compile at LLVM level 0 (``fast_compile``: the padding comparison, the evaluation, SAC's updates); the batched
+rollout and the slot's parity with the plain environment at the commands' level 1 (``commands_level``: the bounds and
+collision-free starts are exact at that level, where a start can lie within rounding of a shelf, and the slot's
+transition is the plain one's bit for bit); the others at the session's level.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import commands_level
 import fast_compile
 
 import wrl_jax
@@ -66,6 +68,7 @@ def test_the_pool_holds_distinct_solvable_layouts_of_several_sizes(env_params):
         assert isinstance(slot_layout(params.pool, k), Layout)
 
 
+@commands_level.at_commands_level  # a claim about level-1 programs (tests/commands_level.py)
 def test_batched_rollouts_draw_layouts_by_key_and_start_collision_free(env_params):
     """256 environments under jit and vmap for 60 steps (past the 40-step limit): resets draw a layout per
     key (the same for the same key), every fresh episode is collision-free at its start, and auto-resets
@@ -115,6 +118,7 @@ def test_batched_rollouts_draw_layouts_by_key_and_start_collision_free(env_param
 
 
 # ------------------------------------------------------------------ parity with the plain environment
+@commands_level.at_commands_level  # a claim about level-1 programs (tests/commands_level.py)
 def test_a_transition_on_slot_k_is_the_plain_env_on_layout_k(env_params):
     """Same key, same state, same action: the plain environment built from the slot's layout (padding as
     shelves) gives the same observation (the target's features included), state, reward, flags and info,

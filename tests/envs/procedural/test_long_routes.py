@@ -5,9 +5,9 @@ once for the module; distances come from a NumPy BFS (a batched one here, checke
 ``wrl_jax.envs.warehouse.layout.bfs_distances``), independent of the JAX flood fill.
 
 Every long family's batch and drawn floors come out of ONE program (``_program``), compiled at LLVM level 0
-(``fast_compile``: three programs at the session's level cost twice as much to compile). Level 0 suits them:
+(``fast_compile``: three programs at LLVM level 1 cost twice as much to compile). Level 0 suits them:
 the layouts are checked for validity, connectivity and route lengths, never bit for bit against a program at
-the session's level (generation draws a few fractions in float32, which another level may round otherwise);
+another level (generation draws a few fractions in float32, which another level may round otherwise);
 the same-key test runs that program again, the determinism a user relies on. The mixture's batch, on the same keys, comes from the
 default generator's 64-layout pool program in chunks (``_mixture``): the program of the other procedural
 modules' 64-layout pools, which the session's cache serves.

@@ -862,7 +862,7 @@ def ood():
     """The out-of-distribution sets for the default generator, 16 layouts each, 3 MovingAI placements.
 
     ``ood_sets`` builds them with its own keys and generator configs, but the five generated sets come out of
-    ONE program compiled at LLVM level 0 (``fast_compile``; five programs at the session's level cost 2.5 times
+    ONE program compiled at LLVM level 0 (``fast_compile``; five programs at LLVM level 1 cost 2.5 times
     as much to compile): a first pass records the ``generate_pool`` calls, one program runs them all, a second
     pass hands each call its pool. The tests read statistics of these layouts, never their bits.
     """
