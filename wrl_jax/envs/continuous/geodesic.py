@@ -23,6 +23,8 @@ still drives, avoids and times everything itself, but no longer has to memorise 
 
 from __future__ import annotations
 
+import functools
+
 from typing import Any
 
 import jax
@@ -99,8 +101,21 @@ def distance_fields(shelves: np.ndarray, targets: np.ndarray, margin: float,
     when nothing shortens (at most one pass per lattice point). Routes run over the points at least
     ``margin`` from shelves and walls; the other points only receive. Targets are snapped to the
     nearest lattice point; a target that is not on the routes leaves its field unreachable.
+
+    Remembered per layout, targets and margin (the last 32): every environment made on one map with the
+    geodesic shaping (an evaluation, a notebook, a sweep's points) needs the same fields.
     """
-    free = free_lattice(np.asarray(shelves, bool), margin, resolution)
+    shelves, targets = np.asarray(shelves, bool), np.asarray(targets, np.float64)
+    return _distance_fields(shelves.tobytes(), shelves.shape, targets.tobytes(), targets.shape, float(margin),
+                            int(resolution)).copy()
+
+
+@functools.lru_cache(maxsize=32)
+def _distance_fields(shelves_bytes: bytes, shelves_shape: tuple, targets_bytes: bytes, targets_shape: tuple,
+                     margin: float, resolution: int) -> np.ndarray:
+    shelves = np.frombuffer(shelves_bytes, bool).reshape(shelves_shape)
+    targets = np.frombuffer(targets_bytes, np.float64).reshape(targets_shape)
+    free = free_lattice(shelves, margin, resolution)
     allowed = np.stack([_move_allowed(free, dy, dx) for dy, dx in MOVES])
     lengths = np.array([np.hypot(dy, dx) / resolution for dy, dx in MOVES], np.float32)
     cells = np.rint(np.asarray(targets, np.float64) * resolution).astype(int)
