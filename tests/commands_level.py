@@ -34,15 +34,17 @@ _LEVEL_FLAG = re.compile(r"--xla_backend_optimization_level=(-?\d+)")
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def session_level() -> int:
-    """The LLVM level this process compiles at, read from ``XLA_FLAGS`` (conftest always names it)."""
+def session_level() -> int | None:
+    """The LLVM level this process compiles at, read from ``XLA_FLAGS``; ``None`` where it names none (XLA's default,
+    ``WRL_TEST_XLA_LEVEL=-1``)."""
     found = _LEVEL_FLAG.findall(os.environ.get("XLA_FLAGS", ""))
-    return int(found[-1]) if found else COMMANDS_LEVEL
+    return int(found[-1]) if found else None
 
 
 def at_commands_level(test):
     """Decorate a test to run at the commands' level: in place if the session runs there, else in a
-    ``pytest`` subprocess that selects this test alone (its output is shown if it fails).
+    ``pytest`` subprocess that selects this test alone and must report it passed (its output is shown if not).
+    For tests without parameters of their own (``run`` takes ``request`` only).
 
     The returned test requests only ``request``, so no fixture is computed at the session's level for
     nothing; at the commands' level it asks ``request`` for the fixtures ``test`` names.
@@ -58,7 +60,10 @@ def at_commands_level(test):
             [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:xdist", request.node.nodeid],
             cwd=ROOT, env=env, capture_output=True, text=True, timeout=900,
         )  # fmt: skip
-        assert done.returncode == 0, f"{request.node.nodeid} at LLVM level {COMMANDS_LEVEL}:\n{done.stdout[-6000:]}"
+        output = f"{request.node.nodeid} at LLVM level {COMMANDS_LEVEL}:\n{done.stdout[-6000:]}\n{done.stderr[-3000:]}"
+        assert done.returncode == 0, output
+        # It ran and passed: not skipped, not selected away (pytest's summary line: "1 passed in 3.2s", "1 passed, 2 warnings in ...").
+        assert re.search(r"^1 passed[ ,]", done.stdout, re.MULTILINE), output
 
     for attribute in ("__name__", "__qualname__", "__module__", "__doc__"):
         setattr(run, attribute, getattr(test, attribute))

@@ -79,17 +79,23 @@ def test_gymnax_learns_our_names_whichever_is_imported_first():
     )
     assert done.returncode == 0, done.stderr
     done = _python(
-        "import sys, wrl_jax\n"
+        "import importlib.util, sys, wrl_jax\n"
         "env, params = wrl_jax.make('Warehouse-8x8-v0')\n"
+        "assert importlib.util.find_spec('gymnax') is not None\n"  # a lookup alone leaves the import hook in place
         # the environment loaded gymnax's base modules alone, not gymnax's environments (seaborn, scipy...)
         "assert 'gymnax.environments.environment' in sys.modules\n"
         "assert not {'gymnax', 'gymnax.environments', 'seaborn'} & set(sys.modules)\n"
+        "base = sys.modules['gymnax.environments.environment'].Environment\n"
         "import gymnax\n"
         "assert gymnax.make('wrl_jax/Warehouse-12x12-v0')[0].name == 'Warehouse-12x12-v0'\n"
         "assert isinstance(env, gymnax.environments.environment.Environment)\n"  # one base class, whoever came first
         "assert env.action_space(params).__class__ is gymnax.environments.spaces.Discrete\n"
         "assert gymnax.make('CartPole-v1')[0].name == 'CartPole-v1'\n"
+        "assert gymnax.environments.environment.Environment is base\n"
+        "assert issubclass(gymnax.environments.CartPole, base)\n"  # gymnax's own environments too
     )
+    assert done.returncode == 0, done.stderr
+    done = _python("import wrl_jax, gymnax\nassert 'wrl_jax/Fleet-12x12-v0' in gymnax.registered_envs\n")
     assert done.returncode == 0, done.stderr
 
 

@@ -24,7 +24,7 @@ compile at the session's level 0 (tests/conftest.py), as they inherit its ``XLA_
 def test_notebook_runs(name, tmp_path, monkeypatch):
     monkeypatch.setenv("WRL_NOTEBOOK_QUICK", "1")  # the kernel inherits this process's environment
     monkeypatch.setenv("MPLBACKEND", "Agg")
-    if name in RUN_BOUND:  # quick mode checks that every cell runs, not what it measures
+    if name in RUN_BOUND:  # its report runs long enough for level 1 to pay
         monkeypatch.setenv("XLA_FLAGS", re.sub(r"--xla_backend_optimization_level=-?\d+", "",
                                                 os.environ.get("XLA_FLAGS", "")) + " --xla_backend_optimization_level=1")
     monkeypatch.setenv("TMPDIR", str(tmp_path))  # the notebooks' output folders (tempfile) go with the test's

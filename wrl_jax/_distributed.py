@@ -1,7 +1,7 @@
 """Multi-host start-up that must run before anything touches JAX's backend.
 
 ``jax.distributed.initialize`` refuses to run once the XLA backend exists,
-and importing gymnax (which ``wrl_jax`` subclasses) already creates it. So
+and making an environment or an algorithm (their arrays) already creates it. So
 the command lines call :func:`initialize_if_requested` first of all
 (:func:`wrl_jax.cli.machine.apply_for_command`): when the process was started as a multi-host run (``--distributed`` on a
 wrl_jax command line, or ``WRL_DISTRIBUTED=1``), it initializes JAX's

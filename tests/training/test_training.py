@@ -78,11 +78,14 @@ def test_chunk_size_does_not_change_results(chunked, reference):
 
 
 @commands_level.at_commands_level  # a claim about level-1 programs (tests/commands_level.py)
-def test_make_train_matches_the_chunked_driver(algo, reference):
+def test_make_train_matches_the_chunked_driver(algo, reference, chunked):
+    """``make_train``'s one program and the driver's chunks of 2 give the one-chunk run's bits, at the commands'
+    level (the chunk-size test above checks the chunks at the session's)."""
     _, ref = reference
     runner, metrics = jax.jit(make_train_seeds(algo))(training.seed_keys(SEEDS))
     assert leaves_equal(runner, ref.runners)
     assert metrics["episodes"].shape == (len(SEEDS), TINY.num_updates)
+    assert leaves_equal(training.run(chunked).runners, ref.runners)
 
 
 def test_exact_resume_from_a_chunk_boundary(chunked, reference, tmp_path):

@@ -45,7 +45,7 @@ SAME_PROGRAM_AS = {"Continuous-Warehouse-12x12-v0": "Continuous-Warehouse-12x12-
 tests/wrappers/test_gymnax_clients.py runs gymnax clients on Warehouse-8x8-v0 itself)."""
 NAMES = [name for name in wrl_jax.registered_names()
          if (not name.startswith("rware-") or name in RWARE_SAMPLE) and name not in SAME_PROGRAM_AS]
-wrl_jax.register_with_gymnax()  # gymnax was imported after wrl_jax (by conftest): the documented call
+wrl_jax.register_with_gymnax()  # the documented call (a no-op here: gymnax learned the names on import)
 BATCH = 4
 EXTRA_STEPS = 3
 """The rollout runs ``max_steps_in_episode + EXTRA_STEPS`` steps, so every environment passes the time limit."""

@@ -148,7 +148,7 @@ def apply_for_command(argv: list[str], choose_devices: bool = False) -> list[str
 
     ``--xla-opt-level`` (with :data:`COMPILE_TIME_FLAGS`) and, for ``--devices N`` with ``N > 1``, the CPU
     split into ``N`` host devices (:func:`xla_flags_with_host_devices`; ``XLA_FLAGS`` naming its own count
-    wins). XLA reads ``XLA_FLAGS`` once, when JAX's backend starts (importing gymnax starts it), so this
+    wins). XLA reads ``XLA_FLAGS`` once, when JAX's backend starts (making an environment starts it), so this
     runs before any environment or algorithm is imported; ``import wrl_jax`` itself starts nothing. Then,
     for ``--distributed`` (or ``WRL_DISTRIBUTED=1``), JAX's distributed runtime
     (:mod:`wrl_jax._distributed`), which must also come before the backend.

@@ -9,7 +9,8 @@ are loaded here under their own names (``sys.modules["gymnax.environments.enviro
 without running gymnax's package ``__init__`` files. When gymnax itself is imported later,
 its package finds them loaded and uses them: one ``Environment`` class, whichever came first.
 :func:`wrl_jax.core.registry.register_with_gymnax_when_imported` then binds them as its
-attributes and registers our names.
+attributes and registers our names. (The first load is not locked against another thread importing gymnax at
+the same moment: make the first environment before starting threads that import gymnax.)
 
 A missing dependency of one of gymnax's own environments (six, for its MNIST bandit) no
 longer stops wrl_jax either; :func:`import_gymnax` says what to install when gymnax itself is needed.

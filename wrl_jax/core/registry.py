@@ -8,7 +8,7 @@ is loaded: ``import gymnax`` imports every gymnax environment and starts JAX's
 backend, which ``import wrl_jax`` must not do (a broken corner of gymnax would
 take the whole package down, and XLA's flags could no longer be set), and
 wrl_jax's environments load only gymnax's base modules. So ``import wrl_jax``
-registers with gymnax if it is loaded, else installs a one-shot hook that does
+registers with gymnax if it is loaded, else installs an import hook that does
 it when gymnax is imported (:func:`register_with_gymnax_when_imported`), in
 whichever order the two come; gymnax refuses an id twice, so it checks first.
 
@@ -135,7 +135,7 @@ def register_with_gymnax_when_imported() -> None:
 
     ``import wrl_jax`` must not import gymnax (it starts JAX), and wrl_jax's environments load
     only gymnax's base modules (:mod:`wrl_jax.core.gymnax_base`). So the names reach gymnax's
-    registry through a one-shot import hook: the first ``import gymnax`` runs gymnax's package as
+    registry through an import hook: the first ``import gymnax`` runs gymnax's package as
     usual, then :func:`_finish_gymnax`.
     """
     if "gymnax" in sys.modules:
@@ -156,16 +156,23 @@ def _finish_gymnax() -> None:
 
 
 class _GymnaxImportHook(importlib.abc.MetaPathFinder):
-    """Finds gymnax with the other finders, and has :func:`_finish_gymnax` run once its package has run."""
+    """Finds gymnax with the finders after it, so that :func:`_finish_gymnax` runs once gymnax's package has run.
+
+    It stays installed: a lookup alone (``importlib.util.find_spec("gymnax")``) or a failed import must not use it
+    up, and once gymnax is in ``sys.modules`` no import asks it again.
+    """
 
     def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> Any:
         if fullname != "gymnax":
             return None
-        sys.meta_path.remove(self)  # one shot, and the lookup below must not find this finder again
-        spec = importlib.util.find_spec(fullname)
-        if spec is not None and spec.loader is not None:
-            spec.loader = _ThenFinishGymnax(spec.loader)
-        return spec
+        others = [finder for finder in sys.meta_path if finder is not self and hasattr(finder, "find_spec")]
+        for finder in others:
+            spec = finder.find_spec(fullname, path, target)
+            if spec is not None:
+                if spec.loader is not None:
+                    spec.loader = _ThenFinishGymnax(spec.loader)
+                return spec
+        return None
 
 
 class _ThenFinishGymnax(importlib.abc.Loader):

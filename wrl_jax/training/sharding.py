@@ -244,7 +244,7 @@ def initialize_distributed(
     ``coordinator_address`` (``host:port``). Unset arguments are read from
     ``WRL_COORDINATOR``, ``WRL_NUM_PROCESSES`` and ``WRL_PROCESS_ID``, then left
     to JAX's cluster auto-detection (SLURM, Open MPI, TPU pods...). It must run
-    before anything touches JAX's backend, which importing gymnax already does:
+    before anything touches JAX's backend, which making an environment already does:
     the command lines therefore run it when ``wrl_jax`` is imported
     (:mod:`wrl_jax._distributed`; ``--distributed`` or ``WRL_DISTRIBUTED=1``).
     """

@@ -124,10 +124,10 @@ def _distance_fields(shelves_bytes: bytes, shelves_shape: tuple, targets_bytes: 
         if 0 <= y < free.shape[0] and 0 <= x < free.shape[1] and free[y, x]:
             start[k, y, x] = 0.0
     fields = np.asarray(_relax(jnp.asarray(start), jnp.asarray(allowed), jnp.asarray(lengths), int(free.sum())))
-    return np.minimum(_fill_off_routes(fields, free), UNREACHABLE).astype(np.float32)
+    return np.minimum(_fill_off_routes(fields, free, resolution), UNREACHABLE).astype(np.float32)
 
 
-def _fill_off_routes(fields: np.ndarray, free: np.ndarray, reach: int = FILL_REACH) -> np.ndarray:
+def _fill_off_routes(fields: np.ndarray, free: np.ndarray, resolution: int, reach: int = FILL_REACH) -> np.ndarray:
     """Points off the routes take the best route point within ``reach`` lattice steps, plus the straight
     distance to it: the potential rises towards shelves and walls instead of leaving holes. ``reach`` is
     far less than a shelf is thick, so no value leaks through a shelf from its other side."""
@@ -139,7 +139,7 @@ def _fill_off_routes(fields: np.ndarray, free: np.ndarray, reach: int = FILL_REA
         for dx in range(-reach, reach + 1):
             if 0 < dy * dy + dx * dx <= reach * reach:
                 shifted = padded[:, reach + dy: reach + dy + ny, reach + dx: reach + dx + nx]
-                best = np.minimum(best, shifted + np.hypot(dy, dx) / RESOLUTION)
+                best = np.minimum(best, shifted + np.hypot(dy, dx) / resolution)
     return np.where(free, fields, best)
 
 
