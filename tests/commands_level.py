@@ -12,11 +12,14 @@ fused here and not there). A few tests claim more than the program's logic:
 
 :func:`at_commands_level` runs such a test in a pytest process of its own at level 1 (its fixtures
 computed there), or in place when the session already runs at level 1 (``WRL_TEST_XLA_LEVEL=1 pytest``).
+:func:`jit` compiles a test's own program at level 1 in place: for long learning runs, which level 1 runs
+faster, not for claims about the package's programs (those are compiled inside the package).
 Importable as ``import commands_level`` from any test (pytest puts ``tests/`` on the path).
 """
 
 from __future__ import annotations
 
+import functools
 import inspect
 import os
 import re
@@ -34,6 +37,17 @@ _LEVEL_FLAG = re.compile(r"--xla_backend_optimization_level=(-?\d+)")
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def jit(fun=None, **kwargs):
+    """``jax.jit(fun, **kwargs)`` compiling at the commands' level, for a test's own long-running program (a learning
+    run measured at level 1): level 1 compiles it more slowly but runs it up to five times faster than level 0.
+    Usable as a decorator, bare or with arguments."""
+    import jax
+
+    if fun is None:
+        return functools.partial(jit, **kwargs)
+    return jax.jit(fun, compiler_options={"xla_backend_optimization_level": COMMANDS_LEVEL}, **kwargs)
+
+
 def session_level() -> int | None:
     """The LLVM level this process compiles at, read from ``XLA_FLAGS``; ``None`` where it names none (XLA's default,
     ``WRL_TEST_XLA_LEVEL=-1``)."""
@@ -42,8 +56,9 @@ def session_level() -> int | None:
 
 
 def at_commands_level(test):
-    """Decorate a test to run at the commands' level: in place if the session runs there, else in a
-    ``pytest`` subprocess that selects this test alone and must report it passed (its output is shown if not).
+    """Decorate a test to run at the commands' level: in place if the session runs there, else in a ``pytest``
+    process at that level that must report it passed (its output is shown if not). One such process runs all the
+    decorated tests of a module this session selected (:func:`_module_outcomes`): one start-up, one set of fixtures.
     For tests without parameters of their own (``run`` takes ``request`` only).
 
     The returned test requests only ``request``, so no fixture is computed at the session's level for
@@ -54,18 +69,31 @@ def at_commands_level(test):
     def run(request):
         if session_level() == COMMANDS_LEVEL:
             return test(**{name: request.getfixturevalue(name) for name in names})
-        env = {**os.environ, LEVEL_VARIABLE: str(COMMANDS_LEVEL),
-               "XLA_FLAGS": _LEVEL_FLAG.sub("", os.environ.get("XLA_FLAGS", "")).strip()}
-        done = subprocess.run(
-            [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:xdist", request.node.nodeid],
-            cwd=ROOT, env=env, capture_output=True, text=True, timeout=900,
-        )  # fmt: skip
-        output = f"{request.node.nodeid} at LLVM level {COMMANDS_LEVEL}:\n{done.stdout[-6000:]}\n{done.stderr[-3000:]}"
-        assert done.returncode == 0, output
-        # It ran and passed: not skipped, not selected away (pytest's summary line: "1 passed in 3.2s", "1 passed, 2 warnings in ...").
-        assert re.search(r"^1 passed[ ,]", done.stdout, re.MULTILINE), output
+        outcomes = _module_outcomes(request)
+        assert request.node.nodeid in outcomes["passed"], (
+            f"{request.node.nodeid} at LLVM level {COMMANDS_LEVEL}:\n{outcomes['output']}")
 
     for attribute in ("__name__", "__qualname__", "__module__", "__doc__"):
         setattr(run, attribute, getattr(test, attribute))
     run.pytestmark = list(getattr(test, "pytestmark", []))
+    run.at_commands_level = True
     return run
+
+
+def _module_outcomes(request) -> dict:
+    """``{"passed": node ids, "output": ...}`` of the decorated tests of ``request``'s module that this session
+    selected, run in one ``pytest`` process at the commands' level by the first of them to run (kept in the module)."""
+    outcomes = request.module.__dict__.setdefault("_commands_level_outcomes", {})
+    if not outcomes:
+        nodeids = [item.nodeid for item in request.session.items
+                   if item.module is request.module and getattr(item.obj, "at_commands_level", False)]
+        env = {**os.environ, LEVEL_VARIABLE: str(COMMANDS_LEVEL),
+               "XLA_FLAGS": _LEVEL_FLAG.sub("", os.environ.get("XLA_FLAGS", "")).strip()}
+        done = subprocess.run(
+            [sys.executable, "-m", "pytest", "-q", "-rA", "-p", "no:cacheprovider", "-p", "no:xdist", *nodeids],
+            cwd=ROOT, env=env, capture_output=True, text=True, timeout=900,
+        )  # fmt: skip
+        # Passed, not skipped or selected away: the short summary's "PASSED <node id>" lines.
+        outcomes["passed"] = set(re.findall(r"^PASSED (\S+)", done.stdout, re.MULTILINE))
+        outcomes["output"] = f"exit {done.returncode}\n{done.stdout[-6000:]}\n{done.stderr[-3000:]}"
+    return outcomes

@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import commands_level
 
 from wrl_jax.agents.base import make_train
 from wrl_jax.agents import ppo, ppo_config, propagation
@@ -280,7 +281,7 @@ def test_training_sharpens_the_planning_policy_on_held_out_layouts(map_env):
     real = np.arange(heldout.layouts.max_items)[None, :] < np.asarray(heldout.layouts.num_items)[:, None]
     slots, items = (jnp.asarray(index, jnp.int32) for index in np.nonzero(real))
 
-    @jax.jit
+    @commands_level.jit  # a long run measured at level 1, which runs it faster (tests/commands_level.py)
     def train_and_evaluate(key, pool):
         """Training, then the trained and the untrained network (two "seeds") greedy and sampled on ``pool``:
         one program (run_episodes as evaluate_sets runs it, without a program per policy kind)."""
