@@ -4,6 +4,7 @@ Read from the source with ``ast`` (every import, function-level ones included), 
 """
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -38,7 +39,10 @@ def _imports(path: Path) -> set[str]:
 
 
 MODULES = {_module_name(path): path for path in PACKAGE.rglob("*.py")}
-GRAPH = {name: {i for i in _imports(path) if i in MODULES and i != name} for name, path in MODULES.items()}
+@functools.cache
+def import_graph() -> dict[str, set[str]]:
+    """Module -> the package modules it imports (parsed on first use, not while pytest collects)."""
+    return {name: {i for i in _imports(path) if i in MODULES and i != name} for name, path in MODULES.items()}
 
 
 def _layer(module: str) -> int | None:
@@ -53,7 +57,7 @@ def test_every_module_has_a_place():
 
 def test_layers_point_down():
     upward = []
-    for module, imported in GRAPH.items():
+    for module, imported in import_graph().items():
         for target in imported:
             if module in ENTRY_POINTS:
                 continue
@@ -68,7 +72,7 @@ def test_layers_point_down():
 
 def test_no_import_cycles():
     # Package __init__ modules are left out: importing ``a.b`` runs ``a/__init__`` first, which is no cycle.
-    graph = {m: {t for t in targets if not MODULES[t].name == "__init__.py"} for m, targets in GRAPH.items()}
+    graph = {m: {t for t in targets if not MODULES[t].name == "__init__.py"} for m, targets in import_graph().items()}
     state: dict[str, int] = {}
     cycles = []
 
@@ -90,7 +94,7 @@ def test_no_import_cycles():
 @pytest.mark.parametrize("module", ["wrl_jax", "wrl_jax.cli", "wrl_jax.wrappers"])
 def test_packages_a_command_imports_first_stay_light(module):
     # The commands import wrl_jax.cli.machine before JAX starts: these must not import JAX's users.
-    heavy = {i for i in GRAPH[module] if _layer(i) is not None and _layer(i) >= LAYERS.index("agents")}
+    heavy = {i for i in import_graph()[module] if _layer(i) is not None and _layer(i) >= LAYERS.index("agents")}
     assert not heavy, heavy
 
 
