@@ -147,16 +147,17 @@ out["errors"] = errors
 CLI_ARGS = ["--env", "Warehouse-8x8-v0", "--num-seeds", "4", "--total-timesteps", "512", "--num-envs", "8",
             "--num-steps", "16", "--num-minibatches", "2", "--update-epochs", "1", "--hidden-sizes", "16",
             "--learning-rate", "0.03", "--shaping-coef", "1.0", "--chunk-updates", "2", "--eval-every", "2",
-            "--no-progress", "--no-plot", "--xla-opt-level", "0"]
+            "--no-progress", "--no-plot"]
 """The command-line check's run: the fixture's seed-axis run (TINY_PPO on 4 seeds, 4 updates in chunks of 2, an
-evaluation every 2), compiled at LLVM level 0 by all three processes (see the test's docstring)."""
+evaluation every 2), so that its programs come from the session's compilation cache instead of being compiled
+again."""
 
 
 def run_with_two_devices(*bodies: str) -> dict:
     """Run the prelude, then ``bodies`` in one Python process with 2 CPU devices; their ``out`` as a dict."""
     env = dict(os.environ)
     # At the commands' LLVM level, not the session's 0: the bit-for-bit claims are about the programs as the commands
-    # compile them (tests/commands_level.py): at level 0 a sharded sweep point and its run alone differ in the last bits.
+    # compile them (tests/commands_level.py), and the --devices 2 command below loads these programs from the cache.
     flags = re.sub(r"--xla_backend_optimization_level=-?\d+", "", os.environ.get("XLA_FLAGS", ""))
     env["XLA_FLAGS"] = (f"--xla_force_host_platform_device_count=2 --xla_backend_optimization_level="
                         f"{commands_level.COMMANDS_LEVEL} {flags}")
@@ -254,12 +255,9 @@ def test_two_process_run_equals_one_process_with_two_devices(tmp_path):
     The single-process run is a process of its own, not a call in the fixture's: run there, after the other
     checks' programs, its floats differed from the hosts' in the last bits (seen 2026-12-02, not explained).
 
-    Compile time: the hosts' 2-process programs are compiled by each host (``JAX_SHARE_BINARY_BETWEEN_HOSTS``, host 0
-    handing host 1 its executables, hangs in Gloo's set-up), so the three processes compile at LLVM level 0
-    (``--xla-opt-level 0``, about half the compile time). The claim is that two hosts compute what one process with
-    two devices computes, at whatever level all three share; it holds at 0 and at the commands' 1 (measured).
-    (At level 1 the single process would load the fixture's programs from the cache, but the hosts' two compiles
-    cost more than that saves.)"""
+    Compile time: the single process's programs are the fixture's seed-axis programs (``CLI_ARGS``), which the
+    session's compilation cache serves. The hosts' 2-process programs are keyed apart and compiled by each host
+    (``JAX_SHARE_BINARY_BETWEEN_HOSTS``, host 0 handing host 1 its executables, hangs in Gloo's set-up)."""
     args = [sys.executable, str(ROOT / "train_ppo.py"), *CLI_ARGS]
     base = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     base["PYTHONPATH"] = str(ROOT) + os.pathsep + base.get("PYTHONPATH", "")
