@@ -89,11 +89,19 @@ def _module_outcomes(request) -> dict:
                    if item.module is request.module and getattr(item.obj, "at_commands_level", False)]
         env = {**os.environ, LEVEL_VARIABLE: str(COMMANDS_LEVEL),
                "XLA_FLAGS": _LEVEL_FLAG.sub("", os.environ.get("XLA_FLAGS", "")).strip()}
-        done = subprocess.run(
-            [sys.executable, "-m", "pytest", "-q", "-rA", "-p", "no:cacheprovider", "-p", "no:xdist", *nodeids],
-            cwd=ROOT, env=env, capture_output=True, text=True, timeout=900,
-        )  # fmt: skip
-        # Passed, not skipped or selected away: the short summary's "PASSED <node id>" lines.
-        outcomes["passed"] = set(re.findall(r"^PASSED (\S+)", done.stdout, re.MULTILINE))
+        outcomes.update(passed=set(), output="")
+        try:
+            done = subprocess.run(
+                [sys.executable, "-m", "pytest", "-q", "-rA", "--color=no", "-p", "no:cacheprovider", "-p", "no:xdist",
+                 *nodeids],
+                cwd=ROOT, env=env, capture_output=True, text=True, timeout=900,
+            )  # fmt: skip
+        except subprocess.TimeoutExpired as error:  # kept, so the module's other decorated tests do not start another
+            outcomes["output"] = f"the level-{COMMANDS_LEVEL} process timed out: {error}"
+            return outcomes
+        # Passed, not skipped or selected away: the short summary's "PASSED <node id>" lines, less any test that also
+        # has an "ERROR <node id>" line (a fixture's teardown that failed after it).
+        summary = {kind: set(re.findall(rf"^{kind} (\S+)", done.stdout, re.MULTILINE)) for kind in ("PASSED", "ERROR")}
+        outcomes["passed"] = summary["PASSED"] - summary["ERROR"]
         outcomes["output"] = f"exit {done.returncode}\n{done.stdout[-6000:]}\n{done.stderr[-3000:]}"
     return outcomes

@@ -2,7 +2,7 @@
 truncation, exact repeats, and learned behaviour on a warehouse small enough for CI.
 
 The learning runs share one compiled program per algorithm (module fixtures, three seeds vmapped). SAC's
-(``sac_run``) serves five tests: its learning, its seeds' difference, the driver's chunks and resume (which must
+(``sac_run``) serves five tests: its learning, its start and seeds, the driver's chunks and resume (which must
 give its bits), and its replay buffer (truncations, and the warm-up's independent uniform actions for the
 correlated-exploration test). The nine learned actors (SAC's, TD3's and PPO's, three seeds each) are evaluated by
 one program (``evaluations``: the corridor's episodes traced and compiled once, each row acting with its own
@@ -136,10 +136,15 @@ def test_td3_learns_to_deliver(evaluations):
     assert (evaluation["eval_success_rate"] == 1.0).sum() >= 2  # measured: 2/3 seeds solve it in 8,000 steps
 
 
-def test_seeds_differ(sac_run):
-    """Seeds differ. (The same seeds run again give the same bits: test_sac_chunks_and_resume_give_the_same_bits runs
-    them again in chunks of 250 and through a checkpoint, a separate program, and compares every bit.)"""
-    _, _, runners, _ = sac_run
+def test_same_seeds_start_alike_and_seeds_differ(sac_run):
+    """A second trainer's start from the same seeds is ``sac_run``'s bit for bit, and seeds differ. (The updates run
+    again give the same bits too: test_sac_chunks_and_resume_give_the_same_bits runs them in chunks of 250 and through
+    a checkpoint, a separate program, and compares every bit.)"""
+    algo, start, runners, _ = sac_run
+    again = training.Trainer(algo, SEEDS, training.LoopConfig(progress=False)).init()
+    leaves, again_leaves = jax.tree_util.tree_leaves(start), jax.tree_util.tree_leaves(again)
+    assert len(leaves) == len(again_leaves) and all(
+        np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(leaves, again_leaves))
     kernels = np.asarray(runners.actor["params"]["Dense_0"]["kernel"])
     assert not np.array_equal(kernels[0], kernels[1]) and not np.array_equal(kernels[1], kernels[2])
 
