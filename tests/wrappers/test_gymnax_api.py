@@ -21,15 +21,13 @@ import copy
 import importlib
 import pickle
 
-import gymnax
-import gymnax.wrappers
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from gymnax.environments import spaces
 
 import wrl_jax
+from wrl_jax.core.gymnax_base import spaces  # gymnax.environments.spaces itself, without gymnax's environments
 from wrl_jax.core.registry import GYMNAX_PREFIX
 
 RWARE_SAMPLE = ("rware-tiny-2ag-v2",)
@@ -45,7 +43,6 @@ SAME_PROGRAM_AS = {"Continuous-Warehouse-12x12-v0": "Continuous-Warehouse-12x12-
 tests/wrappers/test_gymnax_clients.py runs gymnax clients on Warehouse-8x8-v0 itself)."""
 NAMES = [name for name in wrl_jax.registered_names()
          if (not name.startswith("rware-") or name in RWARE_SAMPLE) and name not in SAME_PROGRAM_AS]
-wrl_jax.register_with_gymnax()  # the documented call (a no-op here: gymnax learned the names on import)
 BATCH = 4
 EXTRA_STEPS = 3
 """The rollout runs ``max_steps_in_episode + EXTRA_STEPS`` steps, so every environment passes the time limit."""
@@ -176,8 +173,19 @@ def make_rollout(env, params, length: int, arity: dict):
     return jax.jit(jax.vmap(one_env))
 
 
+@pytest.fixture(scope="module")
+def gymnax():
+    """gymnax itself, imported by the first test that needs it rather than while pytest collects (it imports its
+    twenty environments, about 1.5 s in each worker); the documented registration call, a no-op by then."""
+    import gymnax
+    import gymnax.wrappers
+
+    assert set(wrl_jax.register_with_gymnax()) == {GYMNAX_PREFIX + name for name in wrl_jax.registered_names()}
+    return gymnax
+
+
 @pytest.fixture(scope="module", params=NAMES)
-def case(request):
+def case(request, gymnax):
     """``(name, env, params, trace)``: the gymnax-made environment and one rollout of it (numpy arrays).
 
     ``trace["arity"]`` holds the number of values ``step`` and the legacy view returned.
@@ -201,13 +209,13 @@ def test_skipped_names_share_a_checked_class():
         assert checked in NAMES and type(wrl_jax.make(name)[0]) is type(wrl_jax.make(checked)[0]), name
 
 
-def test_names_are_registered_with_gymnax():
+def test_names_are_registered_with_gymnax(gymnax):
     assert NAMES, "no environment registered"
     for name in NAMES:
         assert GYMNAX_PREFIX + name in gymnax.registered_envs
 
 
-def test_gymnax_make_returns_default_params(case):
+def test_gymnax_make_returns_default_params(case, gymnax):
     name, env, params, _ = case
     assert tree_equal(params, env.default_params)
     ours, our_params = wrl_jax.make(name)
@@ -216,7 +224,7 @@ def test_gymnax_make_returns_default_params(case):
     assert isinstance(env.name, str) and env.name
 
 
-def test_reloading_the_registrations_does_not_raise():
+def test_reloading_the_registrations_does_not_raise(gymnax):
     before = wrl_jax.registered_names()
     importlib.reload(wrl_jax.envs)
     importlib.reload(wrl_jax.envs)
@@ -367,7 +375,7 @@ def test_legacy_view_is_hashable_and_survives_copies(case):
     assert legacy != env and wrl_jax.LegacyStepAPI(copy.deepcopy(env)) == legacy
 
 
-def test_gymnax_legacy_wrapper_fails_under_deepcopy():
+def test_gymnax_legacy_wrapper_fails_under_deepcopy(gymnax):
     """Why :class:`wrl_jax.LegacyStepAPI` exists: gymnax 1.0.1's own 5-value wrapper cannot be deep-copied.
 
     Its ``__getattr__`` forwards every missing name to ``self._env``; a copy

@@ -18,13 +18,11 @@ learning margins hold there as at level 1).
 from __future__ import annotations
 
 import flax.linen as nn
-import gymnax.wrappers
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
-import rejax
 import fast_compile
 
 import wrl_jax
@@ -51,6 +49,8 @@ REJAX_DQN = {"total_timesteps": 3_072, "eval_freq": 1_024, "num_envs": 1, "buffe
 
 def test_rejax_ppo_learns_through_the_legacy_view(env_and_params):
     env, params = env_and_params
+    import rejax  # here, not at collection: rejax imports gymnax, and gymnax its twenty environments
+
     algo = rejax.PPO.create(env=wrl_jax.LegacyStepAPI(env), env_params=params, **REJAX_PPO)
     train = fast_compile.jit(jax.vmap(algo.train))
     train_state, (lengths, returns) = train(jax.random.split(jax.random.key(0), SEEDS))
@@ -67,6 +67,8 @@ def test_rejax_ppo_learns_through_the_legacy_view(env_and_params):
 
 def test_rejax_dqn_runs_through_the_legacy_view(env_and_params):
     env, params = env_and_params
+    import rejax
+
     algo = rejax.DQN.create(env=wrl_jax.LegacyStepAPI(env), env_params=params, **REJAX_DQN)
     train_state, (_, returns) = fast_compile.jit(algo.train)(jax.random.key(1))
     num_evals = 1 + REJAX_DQN["total_timesteps"] // REJAX_DQN["eval_freq"]
@@ -112,6 +114,8 @@ def make_train(env, params, config):
     terminal: that is what such code does, and why docs/gymnax.md points to
     ``info["final_observation"]`` for bootstrapping.
     """
+    import gymnax.wrappers  # here, not at collection: gymnax imports its twenty environments
+
     env = gymnax.wrappers.LogWrapper(gymnax.wrappers.FlattenObservationWrapper(env))
     network = ActorCritic(env.action_space(params).n)
     n, t = config["num_envs"], config["num_steps"]
