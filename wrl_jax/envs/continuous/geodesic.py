@@ -24,7 +24,6 @@ still drives, avoids and times everything itself, but no longer has to memorise 
 from __future__ import annotations
 
 import functools
-
 from typing import Any
 
 import jax
