@@ -27,6 +27,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import fast_compile
+
 LEVEL_VARIABLE = "WRL_TEST_XLA_LEVEL"
 """The session's LLVM level (``tests/conftest.py`` reads it; 0 unless set)."""
 
@@ -37,15 +39,15 @@ _LEVEL_FLAG = re.compile(r"--xla_backend_optimization_level=(-?\d+)")
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def jit(fun=None, **kwargs):
-    """``jax.jit(fun, **kwargs)`` compiling at the commands' level, for a test's own long-running program (a learning
-    run measured at level 1): level 1 compiles it more slowly but runs it up to five times faster than level 0.
-    Usable as a decorator, bare or with arguments."""
-    import jax
+jit = functools.partial(fast_compile.jit_at_level, COMMANDS_LEVEL)
+"""``jax.jit`` compiling at the commands' level, for a test's own long-running program (a learning run measured at
+level 1): level 1 compiles it more slowly but runs it up to five times faster than level 0. Usable as a decorator,
+bare or with arguments."""
 
-    if fun is None:
-        return functools.partial(jit, **kwargs)
-    return jax.jit(fun, compiler_options={"xla_backend_optimization_level": COMMANDS_LEVEL}, **kwargs)
+
+def xla_flags_at(level: int, flags: str) -> str:
+    """``flags`` (an ``XLA_FLAGS`` value) with LLVM ``level`` in place of any level it names."""
+    return f"{_LEVEL_FLAG.sub('', flags).strip()} --xla_backend_optimization_level={level}".strip()
 
 
 def session_level() -> int | None:
@@ -88,7 +90,7 @@ def _module_outcomes(request) -> dict:
         nodeids = [item.nodeid for item in request.session.items
                    if item.module is request.module and getattr(item.obj, "at_commands_level", False)]
         env = {**os.environ, LEVEL_VARIABLE: str(COMMANDS_LEVEL),
-               "XLA_FLAGS": _LEVEL_FLAG.sub("", os.environ.get("XLA_FLAGS", "")).strip()}
+               "XLA_FLAGS": xla_flags_at(COMMANDS_LEVEL, os.environ.get("XLA_FLAGS", ""))}
         outcomes.update(passed=set(), output="")
         try:
             done = subprocess.run(

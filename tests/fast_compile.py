@@ -29,11 +29,17 @@ FAST_COMPILE = {"xla_backend_optimization_level": 0}
 """Per-program XLA options (``jax.jit(..., compiler_options=...)``): LLVM level 0, whatever the session's level."""
 
 
+def jit_at_level(level: int, fun=None, **kwargs):
+    """``jax.jit(fun, **kwargs)`` compiling at LLVM ``level`` whatever the session's; usable as a decorator, bare or
+    with arguments."""
+    if fun is None:
+        return functools.partial(jit_at_level, level, **kwargs)
+    return jax.jit(fun, compiler_options={"xla_backend_optimization_level": level}, **kwargs)
+
+
 def jit(fun=None, **kwargs):
     """``jax.jit(fun, **kwargs)`` compiling at :data:`FAST_COMPILE`; usable as a decorator, bare or with arguments."""
-    if fun is None:
-        return functools.partial(jit, **kwargs)
-    return jax.jit(fun, compiler_options=FAST_COMPILE, **kwargs)
+    return jit_at_level(FAST_COMPILE["xla_backend_optimization_level"], fun, **kwargs)
 
 
 @functools.cache

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import subprocess
 import sys
 import textwrap
@@ -158,9 +157,8 @@ def run_with_two_devices(*bodies: str) -> dict:
     env = dict(os.environ)
     # At the commands' LLVM level, not the session's 0: the bit-for-bit claims are about the programs as the commands
     # compile them (tests/commands_level.py), and the --devices 2 command below loads these programs from the cache.
-    flags = re.sub(r"--xla_backend_optimization_level=-?\d+", "", os.environ.get("XLA_FLAGS", ""))
-    env["XLA_FLAGS"] = (f"--xla_force_host_platform_device_count=2 --xla_backend_optimization_level="
-                        f"{commands_level.COMMANDS_LEVEL} {flags}")
+    env["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2 " + commands_level.xla_flags_at(
+        commands_level.COMMANDS_LEVEL, os.environ.get("XLA_FLAGS", ""))
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     source = textwrap.dedent(PRELUDE) + "".join(textwrap.dedent(b) for b in bodies)
     proc = subprocess.run(
