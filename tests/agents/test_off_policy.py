@@ -208,12 +208,24 @@ def test_squashed_gaussian_density_counts_tanh_and_the_box(corridor):
     (SACConfig, {"buffer_size": 4, "num_envs": 8}, "buffer_size"),
     (TD3Config, {"policy_delay": 0}, "policy_delay must be a positive integer"),
     (TD3Config, {"noise_clip": -0.1}, "noise_clip must be >= 0"),
+    (SACConfig, {"anneal_from": 1.0}, "anneal_from must be in \\[0, 1\\)"),
+    (TD3Config, {"anneal_lr": 1}, "anneal_lr must be True or False"),
 ])
 def test_bad_settings_are_refused_before_compiling(corridor, config_cls, changes, message):
     env, params = corridor
     algo_cls = SAC if config_cls is SACConfig else TD3
     with pytest.raises(ValueError, match=message):
         algo_cls(dataclasses.replace(tiny(config_cls), **changes), env, params)
+
+
+def test_annealed_learning_rate_is_constant_then_falls_to_zero_at_the_last_step(corridor):
+    env, params = corridor
+    config = tiny(SACConfig, anneal_lr=True, anneal_from=0.5)  # 1,000 updates x 2 gradient steps
+    hyper = config.hyper()
+    rates = [float(SAC(config, env, params).learning_rate(hyper, jnp.int32(i))) for i in (0, 999, 1000, 1500, 1999)]
+    np.testing.assert_allclose(rates, [1e-3, 1e-3, 1e-3, 0.5e-3, 1e-6], rtol=1e-4)
+    constant = TD3(tiny(TD3Config), env, params)
+    assert float(constant.learning_rate(constant.config.hyper(), jnp.int32(1999))) == pytest.approx(1e-3)
 
 
 def test_discrete_environments_and_wrong_configs_are_refused(corridor):

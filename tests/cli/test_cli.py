@@ -242,12 +242,17 @@ def test_continuous_learners_see_the_target_unless_told_otherwise(tmp_path):
         cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--observe-target", "True", "--out", str(tmp_path / "x")])
 
 
-def test_the_continuous_collision_penalty_and_sacs_target_entropy_are_flags(tmp_path):
+def test_the_continuous_collision_penalty_observed_obstacles_and_off_policy_settings_are_flags(tmp_path):
     command = cli_options.parse("ppo", ["--env", "Continuous-Warehouse-12x12-Dynamic-v0", "--collision-penalty", "-50",
-                                        "--out", str(tmp_path / "c")])
+                                        "--observe-obstacles", "True", "--out", str(tmp_path / "c")])
     algo = build(command.spec, command.config, command.env)
     assert float(algo.env_params.collision_penalty) == -50.0
+    assert algo.env.observe_obstacles and algo.env.obs_size == 11 + 32 + 5 + 32 + 2
     assert cli_options.parse("sac", ["--target-entropy", "-4", "--out", str(tmp_path / "t")]).config.target_entropy == -4.0
+    annealed = cli_options.parse("td3", ["--anneal-lr", "--anneal-from", "0.5", "--out", str(tmp_path / "a")]).config
+    assert (annealed.anneal_lr, annealed.anneal_from) == (True, 0.5)
+    with pytest.raises(ValueError, match="--observe-obstacles: continuous options"):
+        cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--observe-obstacles", "True", "--out", str(tmp_path / "o")])
     with pytest.raises(ValueError, match="--collision-penalty: continuous options"):
         cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--collision-penalty", "-5", "--out", str(tmp_path / "x")])
 

@@ -184,6 +184,17 @@ class OffPolicyActorCritic(Algorithm[OffPolicyRunner]):
             return runner.buffer.sample(key, config.batch_size), runner.hyper.gamma
         return n_step_sample(runner.buffer, key, config.batch_size, config.n_step, config.num_envs, runner.hyper.gamma)
 
+    def learning_rate(self, hyper: Any, index: jax.Array) -> jax.Array:
+        """The step size of gradient step ``index``: constant, or with ``anneal_lr`` decaying linearly to 0 from
+        ``anneal_from`` of the run's gradient steps to its last."""
+        config = self.config
+        if not config.anneal_lr:
+            return hyper.learning_rate
+        total = config.num_updates * config.gradient_steps
+        start = config.anneal_from * total
+        progress = (index.astype(jnp.float32) - start) / (total - start)
+        return hyper.learning_rate * jnp.clip(1.0 - progress, 0.0, 1.0)
+
     def adam_step(self, params: Any, grads: Any, opt_state: Any, learning_rate: jax.Array) -> tuple[Any, Any]:
         updates, opt_state = self.optimizer.update(grads, opt_state, params)
         return jax.tree.map(lambda p, u: p - learning_rate * u, params, updates), opt_state

@@ -68,6 +68,9 @@ class OffPolicyConfig:
         n_step: rewards summed per learning target (1: the one-step target; more carries rewards
             back faster, stopping at an episode's end).
         adam_eps: Adam's epsilon.
+        anneal_lr: decay the learning rate linearly to 0 at the end of training (every network's and the
+            temperature's), so that the last policy is a settled one rather than one snapshot of a moving policy.
+        anneal_from: the fraction of the gradient steps after which the decay starts (0: from the first step).
 
     Traced:
         learning_rate: Adam step size of every network (and of SAC's temperature).
@@ -91,6 +94,8 @@ class OffPolicyConfig:
     n_step: int = 1
     noise_correlation: float = 0.0
     adam_eps: float = 1e-8
+    anneal_lr: bool = False
+    anneal_from: float = 0.0
     # traced
     learning_rate: float = 3e-4
     gamma: float = 0.99
@@ -142,6 +147,11 @@ class OffPolicyConfig:
         check_hyper(f"{owner}", **{name: getattr(self, name) for name in names})
         if self.adam_eps <= 0:
             raise ValueError(f"{owner}.adam_eps must be positive, got {self.adam_eps}")
+        start = self.anneal_from
+        if isinstance(start, bool) or not isinstance(start, (int, float)) or not 0.0 <= start < 1.0:
+            raise ValueError(f"{owner}.anneal_from must be in [0, 1), got {start!r}")
+        if not isinstance(self.anneal_lr, bool):
+            raise ValueError(f"{owner}.anneal_lr must be True or False, got {self.anneal_lr!r}")
         rho = self.noise_correlation
         if isinstance(rho, bool) or not isinstance(rho, (int, float)) or not 0.0 <= rho < 1.0:
             raise ValueError(f"{owner}.noise_correlation must be in [0, 1), got {rho!r}")

@@ -94,6 +94,7 @@ class SAC(OffPolicyActorCritic):
     # ----------------------------------------------------------- learning
     def gradient_step(self, runner: OffPolicyRunner, key: jax.Array, index: jax.Array) -> tuple[OffPolicyRunner, Metrics]:
         hyper: SACHyper = runner.hyper
+        learning_rate = self.learning_rate(hyper, index)
         batch_key, next_key, actor_key = jax.random.split(key, 3)
         batch, discount = self.sample_batch(runner, batch_key)
         alpha = jnp.exp(runner.log_alpha)
@@ -109,7 +110,7 @@ class SAC(OffPolicyActorCritic):
             return 0.5 * jnp.square(q - target).mean(axis=-1).sum(), q.mean()
 
         (q_loss, q_mean), grads = jax.value_and_grad(critic_loss, has_aux=True)(runner.critic)
-        critic, critic_opt = self.adam_step(runner.critic, grads, runner.critic_opt, hyper.learning_rate)
+        critic, critic_opt = self.adam_step(runner.critic, grads, runner.critic_opt, learning_rate)
 
         def actor_loss(actor):
             action, log_prob = self.sample_unit(actor, batch.obs, actor_key)
@@ -117,12 +118,12 @@ class SAC(OffPolicyActorCritic):
             return (alpha * log_prob - q).mean(), log_prob
 
         (pi_loss, log_prob), grads = jax.value_and_grad(actor_loss, has_aux=True)(runner.actor)
-        actor, actor_opt = self.adam_step(runner.actor, grads, runner.actor_opt, hyper.learning_rate)
+        actor, actor_opt = self.adam_step(runner.actor, grads, runner.actor_opt, learning_rate)
 
         log_alpha, alpha_opt = runner.log_alpha, runner.alpha_opt
         if self.config.learn_alpha:
             entropy_gap = jax.lax.stop_gradient(log_prob + self.target_entropy).mean()
-            log_alpha, alpha_opt = self.adam_step(log_alpha, -entropy_gap, alpha_opt, hyper.learning_rate)
+            log_alpha, alpha_opt = self.adam_step(log_alpha, -entropy_gap, alpha_opt, learning_rate)
 
         runner = runner.replace(
             actor=actor, actor_opt=actor_opt, critic=critic, critic_opt=critic_opt, log_alpha=log_alpha,

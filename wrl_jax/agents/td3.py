@@ -49,6 +49,7 @@ class TD3(OffPolicyActorCritic):
 
     def gradient_step(self, runner: OffPolicyRunner, key: jax.Array, index: jax.Array) -> tuple[OffPolicyRunner, Metrics]:
         hyper: TD3Hyper = runner.hyper
+        learning_rate = self.learning_rate(hyper, index)
         batch_key, noise_key = jax.random.split(key)
         batch, discount = self.sample_batch(runner, batch_key)
 
@@ -64,7 +65,7 @@ class TD3(OffPolicyActorCritic):
             return 0.5 * jnp.square(q - target).mean(axis=-1).sum(), q.mean()
 
         (q_loss, q_mean), grads = jax.value_and_grad(critic_loss, has_aux=True)(runner.critic)
-        critic, critic_opt = self.adam_step(runner.critic, grads, runner.critic_opt, hyper.learning_rate)
+        critic, critic_opt = self.adam_step(runner.critic, grads, runner.critic_opt, learning_rate)
         runner = runner.replace(critic=critic, critic_opt=critic_opt)
 
         def actor_update(r: OffPolicyRunner) -> tuple[OffPolicyRunner, jax.Array]:
@@ -75,7 +76,7 @@ class TD3(OffPolicyActorCritic):
                 return -mlp(first_critic, inputs, self.config.activation)[..., 0].mean()
 
             loss, grads = jax.value_and_grad(actor_loss)(r.actor)
-            actor, actor_opt = self.adam_step(r.actor, grads, r.actor_opt, hyper.learning_rate)
+            actor, actor_opt = self.adam_step(r.actor, grads, r.actor_opt, learning_rate)
             return r.replace(actor=actor, actor_opt=actor_opt,
                              actor_target=self.soft_update(r.actor_target, actor, hyper.tau),
                              critic_target=self.soft_update(r.critic_target, r.critic, hyper.tau)), loss

@@ -69,6 +69,9 @@ class EnvOptions:
     observe_route: bool | None = None
     """continuous environments on fixed layouts: the way to the target around the shelves (its direction in the
     robot's frame, its length); needs --shaping geodesic"""
+    observe_obstacles: bool | None = None
+    """continuous environments: the ranges to the moving obstacles alone and whether the last step was blocked (by
+    an obstacle, by a shelf or wall), after the other values"""
     collision_penalty: float | None = None
     """continuous environments: added to the reward of a step that touches a shelf, wall or obstacle (the contract's
     -10; the run's evaluation keeps the value, so its returns are not the contract's)"""
@@ -227,6 +230,7 @@ FAMILY_OPTIONS = {
     "shaping": ("fleet", "procedural", "continuous"),
     "observe_target": ("continuous",),
     "observe_route": ("continuous",),
+    "observe_obstacles": ("continuous",),
     "randomize": ("continuous",),
     "collision_penalty": ("continuous",),
     "reward_type": ("rware",),

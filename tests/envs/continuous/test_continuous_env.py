@@ -117,3 +117,53 @@ def test_randomized_observations_lie_in_the_space():
     first, _, (observations, _, _) = drive(env.without_default_params(), params, jax.random.key(5), jnp.ones(2))
     assert bool(space.contains(first)) and bool(jax.vmap(space.contains)(observations).all())
     assert float(jnp.abs(observations[:, 4:6]).max()) > 1.0  # the gains and noise really pass 1
+
+
+def obstacle_ranges_numpy(pos, theta, obstacles, num_rays, radius):
+    """Float64 distances along the contract's rays to the nearest disc ahead (inf if none): ``|pos + t d - o| = R``."""
+    angles = theta + 2 * np.pi * np.arange(num_rays) / num_rays
+    d = np.stack([np.cos(angles), np.sin(angles)], -1)[:, None, :]  # (L, 1, 2)
+    f = (pos - obstacles)[None, :, :]  # (1, M, 2)
+    b = (f * d).sum(-1)
+    c = (f * f).sum(-1) - radius * radius
+    disc = b * b - c
+    t = -b - np.sqrt(np.maximum(disc, 0.0))
+    return np.where((disc >= 0) & (t >= 0), t, np.inf).min(-1)
+
+
+def test_observed_obstacles_are_the_rays_to_the_obstacles_alone_and_the_last_contacts():
+    """``observe_obstacles``: after the contract's values (and the target's), ``L`` ranges to the moving obstacles
+    alone, never nearer than the contract's lidar, and the step's two contact flags (0 after a reset)."""
+    env, params = make_continuous(WAREHOUSE_12X12, num_obstacles=4, observe_target=True, observe_obstacles=True)
+    rays, tail = env.num_rays, env.num_rays + 2
+    assert env.obs_size == 11 + rays + 5 + tail and env.observation_space(params).shape == (env.obs_size,)
+
+    @jax.jit
+    def rollout(key):
+        obs, state = env.reset(key, params)
+
+        def one(state, k):
+            act_key, step_key = jax.random.split(k)
+            action = jax.random.uniform(act_key, (2,), minval=-1.0, maxval=1.0) * jnp.array([1.0, 0.3])
+            obs, next_state, _, terminated, truncated, info = env.step(step_key, state, action, params)
+            return next_state, (obs, next_state.pos, next_state.theta, next_state.obstacle_pos,
+                                info["hit_obstacle"], info["hit_shelf"] | info["hit_wall"], terminated | truncated)
+
+        return obs, jax.lax.scan(one, state, jax.random.split(key, 400))[1]
+
+    first, (obs, pos, theta, obstacles, hit_obstacle, hit_other, done) = jax.tree.map(
+        np.asarray, rollout(jax.random.key(11)))
+    np.testing.assert_array_equal(first[-2:], 0.0)
+    assert not done.any()  # no reset inside: every observation is the state's
+    assert hit_obstacle.sum() > 0 and hit_other.sum() > 0  # both flags were exercised
+    np.testing.assert_array_equal(obs[:, -2], hit_obstacle.astype(np.float32))
+    np.testing.assert_array_equal(obs[:, -1], hit_other.astype(np.float32))
+    lidar_range = float(params.lidar_range)
+    for t in range(len(obs)):
+        expected = np.minimum(obstacle_ranges_numpy(pos[t].astype(np.float64), float(theta[t]),
+                                                    obstacles[t].astype(np.float64), rays,
+                                                    float(params.obstacle_radius)), lidar_range) / lidar_range
+        np.testing.assert_allclose(obs[t, -tail:-2], expected, atol=1e-4 / lidar_range)
+    contract = obs[:, 11:11 + rays]
+    assert (obs[:, -tail:-2] >= contract - 1e-6).all()  # shelves may be nearer; obstacles never hide behind them
+    assert (np.isclose(obs[:, -tail:-2], contract, atol=1e-6) & (contract < 1)).any()  # an obstacle is the nearest

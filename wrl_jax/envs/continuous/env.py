@@ -11,6 +11,11 @@ offset in the robot's own frame, computed from the observation itself (so it add
 A network reads "the item is 2 m ahead, 1 m to the left" directly instead of having to learn a
 rotation of a difference of coordinates; PPO learns the 8x8 map with it and not without it
 (docs/continuous.md).
+
+``observe_obstacles=True`` appends what a robot with a people detector and odometry knows beyond its
+lidar: the range along each ray to the nearest moving obstacle alone (shelves do not hide them; no
+noise) and whether the last step was blocked, by an obstacle or by a shelf or wall. With the lidar
+alone a moving obstacle reads like a shelf, and a blocked robot sees what it saw before it pushed.
 """
 
 from __future__ import annotations
@@ -25,11 +30,30 @@ import numpy as np
 from wrl_jax.core.environment import Environment
 from wrl_jax.core.gymnax_base import spaces
 from wrl_jax.envs.continuous.dynamics import OBS_SCALARS, reset_core, transition_core
-from wrl_jax.envs.continuous.geometry import PI, norm
+from wrl_jax.envs.continuous.geometry import PI, TWO_PI, norm, ray_discs
 from wrl_jax.envs.continuous.types import ContinuousParams, ContinuousState, ResetDraws, StepDraws
 
 TARGET_FEATURES = 5
 """Values :func:`target_features` appends: forward and left offsets, distance, and the bearing's cosine and sine."""
+
+
+OBSTACLE_FLAGS = 2
+"""Values :func:`obstacle_features` appends after its rays: the last step blocked by an obstacle, by a shelf or wall."""
+
+
+def obstacle_features(state: ContinuousState, info: dict[str, jax.Array] | None, num_rays: int,
+                      params: ContinuousParams) -> jax.Array:
+    """The moving obstacles seen from ``state`` (after the step): ``L`` ranges over ``lidar_range`` along the
+    contract's rays to the nearest obstacle alone (1 where none is in range), then the step's two contact
+    flags from ``info`` (0 at a reset, ``info=None``)."""
+    angles = state.theta + (TWO_PI * jnp.arange(num_rays, dtype=jnp.float32)) / np.float32(num_rays)
+    ranges = ray_discs(state.pos, angles, state.obstacle_pos, params.obstacle_radius)
+    reading = jnp.minimum(ranges, params.lidar_range) / params.lidar_range
+    if info is None:
+        flags = jnp.zeros((OBSTACLE_FLAGS,), jnp.float32)
+    else:
+        flags = jnp.stack([info["hit_obstacle"], info["hit_shelf"] | info["hit_wall"]]).astype(jnp.float32)
+    return jnp.concatenate([reading, flags])
 
 
 def target_features(obs: jax.Array, width: int, height: int) -> jax.Array:
@@ -61,16 +85,19 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
     event_metrics = MappingProxyType({"collision": "collisions_sum"})
 
     def __init__(self, params: ContinuousParams, num_rays: int = 32, num_obstacles: int = 0,
-                 name: str = "Continuous-Warehouse", observe_target: bool = False):
+                 name: str = "Continuous-Warehouse", observe_target: bool = False,
+                 observe_obstacles: bool = False):
         super().__init__(params)
         self.height, self.width = (int(n) for n in params.shelves.shape)
         self.num_rays, self.num_obstacles = int(num_rays), int(num_obstacles)
         self.max_items = int(params.items.shape[0])
         self.observe_target = bool(observe_target)
+        self.observe_obstacles = bool(observe_obstacles)
         self._name = name
 
     def static_config(self) -> tuple:
-        return (self.height, self.width, self.num_rays, self.num_obstacles, self.max_items, self.observe_target)
+        return (self.height, self.width, self.num_rays, self.num_obstacles, self.max_items, self.observe_target,
+                self.observe_obstacles)
 
     @property
     def name(self) -> str:
@@ -78,13 +105,19 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
 
     @property
     def obs_size(self) -> int:
-        return OBS_SCALARS + self.num_rays + (TARGET_FEATURES if self.observe_target else 0)
+        return (OBS_SCALARS + self.num_rays + (TARGET_FEATURES if self.observe_target else 0)
+                + (self.num_rays + OBSTACLE_FLAGS if self.observe_obstacles else 0))
 
-    def observation(self, obs: jax.Array) -> jax.Array:
-        """The contract's observation, with :func:`target_features` appended under ``observe_target``."""
-        if not self.observe_target:
-            return obs
-        return jnp.concatenate([obs, target_features(obs, self.width, self.height)])
+    def observation(self, obs: jax.Array, state: ContinuousState, info: dict[str, jax.Array] | None,
+                    params: ContinuousParams) -> jax.Array:
+        """The contract's observation, then :func:`target_features` under ``observe_target`` and
+        :func:`obstacle_features` under ``observe_obstacles`` (``info`` is ``None`` at a reset)."""
+        parts = [obs]
+        if self.observe_target:
+            parts.append(target_features(obs, self.width, self.height))
+        if self.observe_obstacles:
+            parts.append(obstacle_features(state, info, self.num_rays, params))
+        return jnp.concatenate(parts) if len(parts) > 1 else obs
 
     @property
     def num_actions(self) -> int:
@@ -138,13 +171,13 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
     def reset_with(self, draws: ResetDraws, params: ContinuousParams) -> tuple[jax.Array, ContinuousState]:
         """The reset from given draws (evaluation and rendering force the item)."""
         obs, state = reset_core(draws, params)
-        return self.observation(obs), state
+        return self.observation(obs, state, None, params), state
 
     def transition(self, key: jax.Array, state: ContinuousState, action: Any, params: ContinuousParams):
         self.check_action(action)
         obs, reached, reward, terminated, truncated, info = transition_core(state, action, self.step_draws(key, params),
                                                                             params)
-        return self.observation(obs), reached, reward, terminated, truncated, info
+        return self.observation(obs, reached, info, params), reached, reward, terminated, truncated, info
 
     def get_obs(self, state: ContinuousState, params: ContinuousParams | None = None, key=None) -> jax.Array:
         raise NotImplementedError("the observation holds the applied command: read it from reset or step")
@@ -175,6 +208,7 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
         high[4:6] = np.inf
         if self.observe_target:
             high[OBS_SCALARS + self.num_rays:][:3] = np.sqrt(2.0)
+        # observe_obstacles' ranges and flags lie in [0, 1]
         return spaces.Box(low=-high, high=high, shape=(self.obs_size,), dtype=jnp.float32)
 
     def state_space(self, params: ContinuousParams | None = None) -> spaces.Dict:

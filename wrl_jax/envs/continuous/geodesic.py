@@ -218,9 +218,10 @@ class GeodesicShaping(ContinuousWarehouse):
     """
 
     def __init__(self, params: GeodesicParams, num_rays: int = 32, num_obstacles: int = 0,
-                 name: str = "Continuous-Warehouse", observe_target: bool = False, observe_route: bool = False):
+                 name: str = "Continuous-Warehouse", observe_target: bool = False, observe_route: bool = False,
+                 observe_obstacles: bool = False):
         super().__init__(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
-                         observe_target=observe_target)
+                         observe_target=observe_target, observe_obstacles=observe_obstacles)
         self.observe_route = bool(observe_route)
 
     def static_config(self) -> tuple:
@@ -272,5 +273,6 @@ def with_fields(env: ContinuousWarehouse, params: ContinuousParams,
     shaped_params = GeodesicParams(**{f: getattr(params, f) for f in params.__dataclass_fields__},
                                    fields=jnp.asarray(fields))
     shaped = GeodesicShaping(shaped_params, num_rays=env.num_rays, num_obstacles=env.num_obstacles, name=env.name,
-                             observe_target=env.observe_target, observe_route=observe_route)
+                             observe_target=env.observe_target, observe_route=observe_route,
+                             observe_obstacles=env.observe_obstacles)
     return shaped, shaped_params

@@ -72,13 +72,15 @@ class ProceduralContinuousWarehouse(ContinuousWarehouse):
     """
 
     def __init__(self, params: ProceduralContinuousParams, generator: GeneratorConfig, pool_seed: int = 0,
-                 num_rays: int = 32, num_obstacles: int = 0, name: str = NAME, observe_target: bool = False):
+                 num_rays: int = 32, num_obstacles: int = 0, name: str = NAME, observe_target: bool = False,
+                 observe_obstacles: bool = False):
         super().__init__(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
-                         observe_target=observe_target)
+                         observe_target=observe_target, observe_obstacles=observe_obstacles)
         self.generator = generator
         self.pool_seed = int(pool_seed)
         self.plain = ContinuousWarehouse(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
-                                         observe_target=observe_target).without_default_params()
+                                         observe_target=observe_target,
+                                         observe_obstacles=observe_obstacles).without_default_params()
 
     def static_config(self) -> tuple:
         return (*super().static_config(), self.generator)
@@ -97,7 +99,7 @@ class ProceduralContinuousWarehouse(ContinuousWarehouse):
         """A fresh episode on pool slot ``index``: the plain environment's reset on that layout, from ``key``."""
         layout = layout_params(params, index)
         obs, state = reset_core(self.reset_draws(key, layout), layout)
-        return self.observation(obs), with_layout_index(state, index)
+        return self.observation(obs, state, None, layout), with_layout_index(state, index)
 
     def transition(self, key: jax.Array, state: ProceduralContinuousState, action: Any,
                    params: ProceduralContinuousParams):
@@ -105,7 +107,7 @@ class ProceduralContinuousWarehouse(ContinuousWarehouse):
         layout = layout_params(params, state.layout_index)
         obs, reached, reward, terminated, truncated, info = transition_core(state, action, self.step_draws(key, layout),
                                                                             layout)
-        return self.observation(obs), reached, reward, terminated, truncated, info
+        return self.observation(obs, reached, info, layout), reached, reward, terminated, truncated, info
 
     def is_terminated(self, state: ProceduralContinuousState, params: ProceduralContinuousParams) -> jax.Array:
         goal = layout_params(params, state.layout_index).goal
@@ -148,14 +150,15 @@ def _shape(name: str, value: Any) -> tuple[int, int]:
 def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shape: tuple[int, int] = (12, 12),
                                min_shape: tuple[int, int] = (8, 8), num_rays: int = 32, num_obstacles: int = 0,
                                max_steps: int | None = None, randomize: bool = True, name: str = NAME,
-                               observe_target: bool = False,
+                               observe_target: bool = False, observe_obstacles: bool = False,
                                **overrides: Any) -> tuple[ProceduralContinuousWarehouse, ProceduralContinuousParams]:
     """``(env, params)``: ``pool_size`` generated layouts of ``min_shape..max_shape`` from ``seed``.
 
     Overrides: any other :class:`GeneratorConfig` field (``family`` ``"mixture"`` by default,
     ``max_items`` 8, ``density``...) and any constant of the contract (``make_continuous``'s, e.g.
     ``dt``, ``collision_penalty``). ``max_steps`` defaults to :func:`default_max_steps` of ``max_shape``.
-    ``observe_target`` appends the target seen from the robot, as on the plain environment.
+    ``observe_target`` and ``observe_obstacles`` append the target and the moving obstacles seen from the robot,
+    as on the plain environment.
 
     Raises:
         ValueError: naming the setting: an unknown override (``shaping`` and ``observe_route``, which need a
@@ -186,7 +189,8 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     pool = generate_pool(jax.random.key(seed), pool_size, generator)
     # The template checks and builds every contract constant from slot 0 (the layout fields are then the pool's).
     _, template = make_continuous(slot_layout(pool.layouts, 0), max_steps=max_steps, num_rays=num_rays,
-                                  num_obstacles=0, randomize=randomize, observe_target=observe_target, **overrides)
+                                  num_obstacles=0, randomize=randomize, observe_target=observe_target,
+                                  observe_obstacles=observe_obstacles, **overrides)
     eligible = _obstacle_masks(pool.layouts)
     if num_obstacles:
         counts = np.asarray(eligible.sum(axis=(1, 2)))
@@ -198,5 +202,6 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     fields = {field.name: getattr(template, field.name) for field in dataclasses.fields(template)}
     params = layout_params(ProceduralContinuousParams(**fields, pool=pool.layouts, pool_obstacle_cells=eligible), 0)
     env = ProceduralContinuousWarehouse(params, generator, pool_seed=seed, num_rays=num_rays,
-                                        num_obstacles=num_obstacles, name=name, observe_target=observe_target)
+                                        num_obstacles=num_obstacles, name=name, observe_target=observe_target,
+                                        observe_obstacles=observe_obstacles)
     return env, params

@@ -54,7 +54,7 @@ def obstacle_cells(layout: Layout) -> np.ndarray:
 
 def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_rays: int = 32,
                     num_obstacles: int = 0, name: str = "Continuous-Warehouse", shaping: str = "manhattan",
-                    observe_target: bool = False, observe_route: bool = False,
+                    observe_target: bool = False, observe_route: bool = False, observe_obstacles: bool = False,
                     **overrides: Any) -> tuple[ContinuousWarehouse, ContinuousParams]:
     """``(env, params)`` for ``layout`` (a :class:`Layout` or an ASCII map of SPEC.md).
 
@@ -62,7 +62,9 @@ def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_r
     contract's Manhattan distance (:mod:`wrl_jax.envs.continuous.geodesic`); ``observe_target=True``
     appends the target seen from the robot to the observation (:func:`~.env.target_features`);
     ``observe_route=True`` (with geodesic shaping, whose fields it reads) appends the way there
-    (:func:`~.geodesic.route_features`). All three are for learners; the registered names are the contract's.
+    (:func:`~.geodesic.route_features`); ``observe_obstacles=True`` appends the moving obstacles' ranges and the
+    last step's contacts (:func:`~.env.obstacle_features`). All four are for learners; the registered names are
+    the contract's.
 
     Raises:
         ValueError: naming the problem: an unknown override or shaping, a non-positive length or speed, a
@@ -112,7 +114,8 @@ def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_r
         start_cell=jnp.asarray(layout.start, jnp.int32), goal=jnp.asarray(point(layout.goal)),
         goal_cell=jnp.asarray(layout.goal, jnp.int32), items=jnp.asarray(items),
         num_items=jnp.asarray(len(layout.items), jnp.int32), obstacle_cells=jnp.asarray(eligible))
-    for flag, value in (("observe_target", observe_target), ("observe_route", observe_route)):
+    for flag, value in (("observe_target", observe_target), ("observe_route", observe_route),
+                        ("observe_obstacles", observe_obstacles)):
         if not isinstance(value, (bool, np.bool_)):
             raise ValueError(f"{flag} must be True or False, got {value!r}")
     if observe_route and shaping != "geodesic":
@@ -120,7 +123,7 @@ def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_r
                          "with it (--shaping geodesic), or observe_route=False (--observe-route False); "
                          f"got shaping={shaping!r}")
     env = ContinuousWarehouse(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
-                              observe_target=bool(observe_target))
+                              observe_target=bool(observe_target), observe_obstacles=bool(observe_obstacles))
     return geodesic.with_fields(env, params, bool(observe_route)) if shaping == "geodesic" else (env, params)
 
 
