@@ -210,6 +210,7 @@ def test_squashed_gaussian_density_counts_tanh_and_the_box(corridor):
     (TD3Config, {"noise_clip": -0.1}, "noise_clip must be >= 0"),
     (SACConfig, {"anneal_from": 1.0}, "anneal_from must be in \\[0, 1\\)"),
     (TD3Config, {"anneal_lr": 1}, "anneal_lr must be True or False"),
+    (SACConfig, {"anneal_from": 0.5}, "needs anneal_lr=True"),
 ])
 def test_bad_settings_are_refused_before_compiling(corridor, config_cls, changes, message):
     env, params = corridor
@@ -218,7 +219,7 @@ def test_bad_settings_are_refused_before_compiling(corridor, config_cls, changes
         algo_cls(dataclasses.replace(tiny(config_cls), **changes), env, params)
 
 
-def test_annealed_learning_rate_is_constant_then_falls_to_zero_at_the_last_step(corridor):
+def test_annealed_learning_rate_is_constant_then_falls_towards_zero_at_the_last_step(corridor):
     env, params = corridor
     config = tiny(SACConfig, anneal_lr=True, anneal_from=0.5)  # 1,000 updates x 2 gradient steps
     hyper = config.hyper()
@@ -226,6 +227,24 @@ def test_annealed_learning_rate_is_constant_then_falls_to_zero_at_the_last_step(
     np.testing.assert_allclose(rates, [1e-3, 1e-3, 1e-3, 0.5e-3, 1e-6], rtol=1e-4)
     constant = TD3(tiny(TD3Config), env, params)
     assert float(constant.learning_rate(constant.config.hyper(), jnp.int32(1999))) == pytest.approx(1e-3)
+
+
+@pytest.mark.parametrize("algo_cls,config_cls", [(SAC, SACConfig), (TD3, TD3Config)])
+def test_every_network_takes_the_annealed_step_size(corridor, algo_cls, config_cls):
+    """An update past the run's end (where the schedule is 0) leaves every learned array as it was; the first
+    learning update moves them, and both log the step size they used (the mean of the update's 2 steps)."""
+    env, params = corridor
+    config = config_cls(num_envs=4, total_timesteps=400, learning_starts=0, batch_size=8, hidden_sizes=(8,),
+                        buffer_size=64, gradient_steps=2, anneal_lr=True)  # 100 updates
+    algo = algo_cls(config, env, params)
+    runner = algo.init(jax.random.key(0))
+    update = fast_compile.jit(algo.update)
+    learned = lambda r: jax.tree.leaves((r.actor, r.critic, r.log_alpha))  # noqa: E731
+    moved, first = update(runner, jnp.int32(0))
+    stayed, past = update(runner, jnp.int32(config.num_updates + 1))
+    assert all(np.array_equal(a, b) for a, b in zip(learned(stayed), learned(runner)))
+    assert not all(np.array_equal(a, b) for a, b in zip(learned(moved), learned(runner)))
+    assert float(past["learning_rate"]) == 0.0 and float(first["learning_rate"]) == pytest.approx(3e-4 * (1 - 0.5 / 200))
 
 
 def test_discrete_environments_and_wrong_configs_are_refused(corridor):

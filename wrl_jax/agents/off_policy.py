@@ -44,7 +44,7 @@ from wrl_jax.agents.base import (
     sum_episode_sums,
     track_episodes,
 )
-from wrl_jax.agents.common import count_events, polyak_update
+from wrl_jax.agents.common import count_events, linear_decay, polyak_update
 from wrl_jax.agents.initializers import init_mlp_params
 from wrl_jax.agents.networks import ACTIVATIONS, mlp_forward_flops
 from wrl_jax.agents.off_policy_config import OffPolicyConfig
@@ -185,15 +185,16 @@ class OffPolicyActorCritic(Algorithm[OffPolicyRunner]):
         return n_step_sample(runner.buffer, key, config.batch_size, config.n_step, config.num_envs, runner.hyper.gamma)
 
     def learning_rate(self, hyper: Any, index: jax.Array) -> jax.Array:
-        """The step size of gradient step ``index``: constant, or with ``anneal_lr`` decaying linearly to 0 from
-        ``anneal_from`` of the run's gradient steps to its last."""
+        """The step size of gradient step ``index`` (``update * gradient_steps + i``, warm-up updates included):
+        constant, or under ``anneal_lr`` constant until ``anneal_from`` of the run, then falling linearly to
+        ``learning_rate / (steps in the decay)`` at the last step (PPO's :func:`linear_decay`)."""
         config = self.config
         if not config.anneal_lr:
             return hyper.learning_rate
         total = config.num_updates * config.gradient_steps
         start = config.anneal_from * total
         progress = (index.astype(jnp.float32) - start) / (total - start)
-        return hyper.learning_rate * jnp.clip(1.0 - progress, 0.0, 1.0)
+        return jnp.minimum(linear_decay(hyper.learning_rate, progress), hyper.learning_rate)
 
     def adam_step(self, params: Any, grads: Any, opt_state: Any, learning_rate: jax.Array) -> tuple[Any, Any]:
         updates, opt_state = self.optimizer.update(grads, opt_state, params)

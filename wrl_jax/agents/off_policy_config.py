@@ -68,12 +68,14 @@ class OffPolicyConfig:
         n_step: rewards summed per learning target (1: the one-step target; more carries rewards
             back faster, stopping at an episode's end).
         adam_eps: Adam's epsilon.
-        anneal_lr: decay the learning rate linearly to 0 at the end of training (every network's and the
-            temperature's), so that the last policy is a settled one rather than one snapshot of a moving policy.
-        anneal_from: the fraction of the gradient steps after which the decay starts (0: from the first step).
+        anneal_lr: decay the step size linearly towards 0 over the end of the run (every network's and SAC's
+            temperature's), as PPO's ``anneal_lr`` does: the last policy then moves less between snapshots.
+        anneal_from: the fraction of the run's updates (counted from the first, warm-up included) after which
+            the decay starts (0: from the first); needs ``anneal_lr``.
 
     Traced:
-        learning_rate: Adam step size of every network (and of SAC's temperature).
+        learning_rate: Adam step size of every network (and of SAC's temperature); the starting one under
+            ``anneal_lr``.
         gamma: discount.
         tau: Polyak step of the target networks.
         reward_scale: rewards are multiplied by it before learning.
@@ -152,6 +154,9 @@ class OffPolicyConfig:
             raise ValueError(f"{owner}.anneal_from must be in [0, 1), got {start!r}")
         if not isinstance(self.anneal_lr, bool):
             raise ValueError(f"{owner}.anneal_lr must be True or False, got {self.anneal_lr!r}")
+        if start and not self.anneal_lr:
+            raise ValueError(f"{owner}.anneal_from={start!r} needs anneal_lr=True (--anneal-lr): without it the step "
+                             f"size is constant")
         rho = self.noise_correlation
         if isinstance(rho, bool) or not isinstance(rho, (int, float)) or not 0.0 <= rho < 1.0:
             raise ValueError(f"{owner}.noise_correlation must be in [0, 1), got {rho!r}")

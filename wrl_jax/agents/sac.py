@@ -129,7 +129,7 @@ class SAC(OffPolicyActorCritic):
             actor=actor, actor_opt=actor_opt, critic=critic, critic_opt=critic_opt, log_alpha=log_alpha,
             alpha_opt=alpha_opt, critic_target=self.soft_update(runner.critic_target, critic, hyper.tau))
         metrics = {"critic_loss": q_loss, "actor_loss": pi_loss, "q_mean": q_mean, "alpha": alpha,
-                   "entropy": -log_prob.mean()}
+                   "entropy": -log_prob.mean(), "learning_rate": learning_rate}
         return runner, metrics
 
     def gradient_step_flops(self) -> int:

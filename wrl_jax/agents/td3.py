@@ -84,7 +84,8 @@ class TD3(OffPolicyActorCritic):
         due = index % self.config.policy_delay == 0
         runner, pi_loss = jax.lax.cond(due, actor_update, lambda r: (r, jnp.zeros((), jnp.float32)), runner)
         # Averaged over a phase's gradient steps, where one in policy_delay computed it.
-        metrics = {"critic_loss": q_loss, "actor_loss": pi_loss * self.config.policy_delay, "q_mean": q_mean}
+        metrics = {"critic_loss": q_loss, "actor_loss": pi_loss * self.config.policy_delay, "q_mean": q_mean,
+                   "learning_rate": learning_rate}
         return runner, metrics
 
     def gradient_step_flops(self) -> int:

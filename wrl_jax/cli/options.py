@@ -71,7 +71,7 @@ class EnvOptions:
     robot's frame, its length); needs --shaping geodesic"""
     observe_obstacles: bool | None = None
     """continuous environments: the ranges to the moving obstacles alone and whether the last step was blocked (by
-    an obstacle, by a shelf or wall), after the other values"""
+    an obstacle, by a shelf or wall), after the target's values and before the route's"""
     collision_penalty: float | None = None
     """continuous environments: added to the reward of a step that touches a shelf, wall or obstacle (the contract's
     -10; the run's evaluation keeps the value, so its returns are not the contract's)"""

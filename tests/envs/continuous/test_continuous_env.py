@@ -121,7 +121,8 @@ def test_randomized_observations_lie_in_the_space():
 
 def obstacle_ranges_numpy(pos, theta, obstacles, num_rays, radius):
     """Float64 distances along the contract's rays to the nearest disc ahead (inf if none): ``|pos + t d - o| = R``."""
-    angles = theta + 2 * np.pi * np.arange(num_rays) / num_rays
+    angles = (np.float32(theta) + np.float32(2 * np.pi) * np.arange(num_rays, dtype=np.float32)
+              / np.float32(num_rays)).astype(np.float64)  # the contract's float32 angles, then exact geometry
     d = np.stack([np.cos(angles), np.sin(angles)], -1)[:, None, :]  # (L, 1, 2)
     f = (pos - obstacles)[None, :, :]  # (1, M, 2)
     b = (f * d).sum(-1)
@@ -167,3 +168,35 @@ def test_observed_obstacles_are_the_rays_to_the_obstacles_alone_and_the_last_con
     contract = obs[:, 11:11 + rays]
     assert (obs[:, -tail:-2] >= contract - 1e-6).all()  # shelves may be nearer; obstacles never hide behind them
     assert (np.isclose(obs[:, -tail:-2], contract, atol=1e-6) & (contract < 1)).any()  # an obstacle is the nearest
+
+
+def test_an_episodes_last_contacts_stay_in_final_obs_and_the_route_stays_last():
+    """Driving straight ahead into the shelves until the limit: the truncating step's observation (``final_obs``)
+    holds its contact flag, the next episode's first observation none; with the target and the route too, the
+    route's 3 values come last and every observation lies in the space."""
+    from wrl_jax.envs.continuous.geodesic import route_features
+
+    env, params = make_continuous(WAREHOUSE_12X12, num_obstacles=4, max_steps=70, shaping="geodesic",
+                                  observe_target=True, observe_obstacles=True, observe_route=True)
+    assert env.obs_size == 11 + 32 + 5 + 32 + 2 + 3
+    space = env.observation_space(params)
+
+    @jax.jit
+    def rollout(key):
+        _, state = env.reset(key, params)
+
+        def one(state, k):
+            obs, state, _, _, truncated, info = env.step(k, state, jnp.array([1.0, 0.0]), params)
+            flags = jnp.stack([info["hit_obstacle"], info["hit_shelf"] | info["hit_wall"]]).astype(jnp.float32)
+            return state, (obs, info["final_obs"], truncated, flags)
+
+        return jax.lax.scan(one, state, jax.random.split(key, 70))[1]
+
+    obs, final_obs, truncated, flags = jax.tree.map(np.asarray, rollout(jax.random.key(2)))
+    assert truncated[-1] and flags[-1].any()  # 70 steps of 0.2 m cross any 12 m map: the last one pushes
+    np.testing.assert_array_equal(final_obs[:, -5:-3], flags)  # the two flags, before the route's 3 values
+    np.testing.assert_array_equal(obs[-1, -5:-3], 0.0)
+    np.testing.assert_array_equal(final_obs[:-1], obs[:-1])
+    route = jax.vmap(lambda o: route_features(o, params, env.width, env.height))(jnp.asarray(final_obs))
+    np.testing.assert_allclose(final_obs[:, -3:], np.asarray(route), atol=1e-4)  # a difference of field reads: not bits
+    assert bool(jax.vmap(space.contains)(jnp.asarray(final_obs)).all()) and float(space.low[-5]) == 0.0

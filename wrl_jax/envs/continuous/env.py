@@ -12,7 +12,7 @@ A network reads "the item is 2 m ahead, 1 m to the left" directly instead of hav
 rotation of a difference of coordinates; PPO learns the 8x8 map with it and not without it
 (docs/continuous.md).
 
-``observe_obstacles=True`` appends what a robot with a people detector and odometry knows beyond its
+``observe_obstacles=True`` appends (after the target's values, before a route's) what a robot with a people detector and odometry knows beyond its
 lidar: the range along each ray to the nearest moving obstacle alone (shelves do not hide them; no
 noise) and whether the last step was blocked, by an obstacle or by a shelf or wall. With the lidar
 alone a moving obstacle reads like a shelf, and a blocked robot sees what it saw before it pushed.
@@ -208,8 +208,11 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
         high[4:6] = np.inf
         if self.observe_target:
             high[OBS_SCALARS + self.num_rays:][:3] = np.sqrt(2.0)
-        # observe_obstacles' ranges and flags lie in [0, 1]
-        return spaces.Box(low=-high, high=high, shape=(self.obs_size,), dtype=jnp.float32)
+        low = -high
+        if self.observe_obstacles:  # the obstacles' ranges and the contact flags lie in [0, 1]
+            start = OBS_SCALARS + self.num_rays + (TARGET_FEATURES if self.observe_target else 0)
+            low[start:start + self.num_rays + OBSTACLE_FLAGS] = 0.0
+        return spaces.Box(low=low, high=high, shape=(self.obs_size,), dtype=jnp.float32)
 
     def state_space(self, params: ContinuousParams | None = None) -> spaces.Dict:
         raise NotImplementedError("the continuous warehouse has no state space")

@@ -214,7 +214,8 @@ class GeodesicShaping(ContinuousWarehouse):
 
     Build it with ``make_continuous(layout, shaping="geodesic")`` or ``wrl_jax.make(name, shaping="geodesic")``;
     ``params`` are :class:`GeodesicParams`. Everything but the reward is the contract's, bit for bit, and
-    ``observe_route`` appends :func:`route_features` to the observation (after the target's, if any).
+    ``observe_route`` appends :func:`route_features` to the observation, last (after the target's and the
+    obstacles' values, if any).
     """
 
     def __init__(self, params: GeodesicParams, num_rays: int = 32, num_obstacles: int = 0,
@@ -232,8 +233,7 @@ class GeodesicShaping(ContinuousWarehouse):
         return super().obs_size + (ROUTE_FEATURES if self.observe_route else 0)
 
     def with_route(self, obs: jax.Array, params: GeodesicParams) -> jax.Array:
-        """The route after the other values. Appended here, by reset and transition, not in ``observation``:
-        it reads the params' fields, which that hook does not receive."""
+        """The route after every other value (the observation space's last bound is its length)."""
         if not self.observe_route:
             return obs
         return jnp.concatenate([obs, route_features(obs, params, self.width, self.height)])
@@ -242,9 +242,8 @@ class GeodesicShaping(ContinuousWarehouse):
         space = super().observation_space(params)  # sized by obs_size, the route's values bounded by 1
         if not self.observe_route:
             return space
-        high = np.asarray(space.high).copy()
+        high, low = np.asarray(space.high).copy(), np.asarray(space.low).copy()
         high[-1] = ROUTE_LENGTH_CAP
-        low = -high
         low[-1] = 0.0
         return type(space)(low=low, high=high, shape=(self.obs_size,), dtype=jnp.float32)
 

@@ -90,9 +90,9 @@ def to_pixel(point, cell_size: int = DEFAULT_CELL_SIZE) -> tuple[int, int]:
 def lidar_from_obs(obs: jax.Array, params: ContinuousParams, num_rays: int) -> jax.Array:
     """The lidar distances in metres ``(..., L)`` an observation holds (what the robot saw, noise included).
 
-    ``num_rays`` is the environment's ``L`` (``env.num_rays``): the rays follow the contract's 11 values,
-    and with ``observe_target`` the target's 5 values follow the rays (then, with ``observe_route``, the
-    route's 3).
+    ``num_rays`` is the environment's ``L`` (``env.num_rays``): the rays follow the contract's 11 values;
+    the learners' options come after them in this order: ``observe_target``'s 5 values, ``observe_obstacles``'
+    ``L + 2``, ``observe_route``'s 3.
     """
     return obs[..., OBS_SCALARS:OBS_SCALARS + num_rays] * params.lidar_range
 
