@@ -247,7 +247,7 @@ def test_the_continuous_collision_penalty_observed_obstacles_and_off_policy_sett
                                         "--observe-obstacles", "True", "--out", str(tmp_path / "c")])
     algo = build(command.spec, command.config, command.env)
     assert float(algo.env_params.collision_penalty) == -50.0
-    assert algo.env.observe_obstacles and algo.env.obs_size == 11 + 32 + 5 + 32 + 2
+    assert algo.env.observe_obstacles and algo.env.obs_size == 11 + 32 + 5 + 32 + 2 + 3  # the route last
     assert cli_options.parse("sac", ["--target-entropy", "-4", "--out", str(tmp_path / "t")]).config.target_entropy == -4.0
     annealed = cli_options.parse("td3", ["--anneal-lr", "--anneal-from", "0.5", "--out", str(tmp_path / "a")]).config
     assert (annealed.anneal_lr, annealed.anneal_from) == (True, 0.5)
@@ -257,18 +257,27 @@ def test_the_continuous_collision_penalty_observed_obstacles_and_off_policy_sett
         cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--collision-penalty", "-5", "--out", str(tmp_path / "x")])
 
 
-def test_sac_and_td3_see_the_route_on_the_study_maps_and_ppo_does_not(tmp_path):
+def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obstacles_where_they_move(tmp_path):
     """SAC's and TD3's commands add geodesic shaping and ``observe_route`` on the study's maps (the procedural
-    variant has no distance fields); PPO keeps the target alone; the flags turn it off, and a route without the
-    fields is refused by name when the environment is built, before anything compiles."""
+    variant has no distance fields); PPO keeps the target alone there; on the moving obstacles' map every learner
+    also sees the obstacles, and PPO trains for the 3M steps measured there; the flags turn it off, and a route
+    without the fields is refused by name when the environment is built, before anything compiles."""
+    dynamic = "Continuous-Warehouse-12x12-Dynamic-v0"
     for algo in ("sac", "td3"):
         for name in ("Continuous-Warehouse-8x8-v0", "Continuous-Warehouse-12x12-v0"):
             overrides = cli_options.parse(algo, ["--env", name, "--out", str(tmp_path / algo)]).env.overrides()
             assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"]) == (
                 "geodesic", True, True), (algo, name)
-        for name in ("Continuous-Warehouse-12x12-Dynamic-v0", "Continuous-Procedural-Warehouse-v0"):
-            overrides = cli_options.parse(algo, ["--env", name, "--out", str(tmp_path / algo)]).env.overrides()
-            assert "observe_route" not in overrides and "shaping" not in overrides and overrides["observe_target"]
+            assert "observe_obstacles" not in overrides
+        overrides = cli_options.parse(algo, ["--env", "Continuous-Procedural-Warehouse-v0", "--out",
+                                             str(tmp_path / algo)]).env.overrides()
+        assert "observe_route" not in overrides and "shaping" not in overrides and overrides["observe_target"]
+    for algo in ("sac", "td3", "ppo"):
+        command = cli_options.parse(algo, ["--env", dynamic, "--out", str(tmp_path / algo)])
+        overrides = command.env.overrides()
+        assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"],
+                overrides["observe_obstacles"]) == ("geodesic", True, True, True), algo
+    assert command.run.preset == "continuous_dynamic" and command.config.total_timesteps == 3_000_000
     assert "observe_route" not in cli_options.parse("ppo", ["--env", "Continuous-Warehouse-12x12-v0", "--out",
                                                             str(tmp_path / "ppo")]).env.overrides()
     command = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--observe-route", "False",

@@ -54,7 +54,12 @@ from wrl_jax.agents.base import (
     track_episodes,
 )
 from wrl_jax.agents.common import clip_by_global_norm, count_events, linear_decay
-from wrl_jax.agents.off_policy_config import CONTINUOUS_ENV_DEFAULTS, CONTINUOUS_NAMES
+from wrl_jax.agents.off_policy_config import (
+    CONTINUOUS_ENV_DEFAULTS,
+    CONTINUOUS_NAMES,
+    DYNAMIC_ENV_DEFAULTS,
+    DYNAMIC_NAME,
+)
 from wrl_jax.agents.ppo_config import (
     FLEET_ENV_DEFAULTS,
     PRESETS,
@@ -408,11 +413,12 @@ SPEC = AlgoSpec(
     study=STUDY_TABLE3,
     env_presets={"Procedural-Warehouse-v0": "procedural", "Fleet-12x12-v0": "fleet", "Fleet-32x32-v0": "fleet",
                  **{f"Continuous-{name}": "continuous" for name in (
-                     "Warehouse-8x8-v0", "Warehouse-12x12-v0", "Warehouse-12x12-Dynamic-v0", "Procedural-Warehouse-v0")}},
+                     "Warehouse-8x8-v0", "Warehouse-12x12-v0", "Procedural-Warehouse-v0")},
+                 DYNAMIC_NAME: "continuous_dynamic"},
     family_presets={"rware": "rware"},
     env_defaults={"Fleet-12x12-v0": FLEET_ENV_DEFAULTS, "Fleet-32x32-v0": FLEET_ENV_DEFAULTS,
                   "Procedural-Warehouse-v0": PROCEDURAL_ENV_DEFAULTS,
-                  **{name: CONTINUOUS_ENV_DEFAULTS for name in CONTINUOUS_NAMES}},
+                  **{name: CONTINUOUS_ENV_DEFAULTS for name in CONTINUOUS_NAMES}, DYNAMIC_NAME: DYNAMIC_ENV_DEFAULTS},
     preset_env_defaults=PRESET_ENV_DEFAULTS,
 )
 

@@ -300,8 +300,12 @@ RWARE = dataclasses.replace(
 reaches. One-hot cells and small, frequent updates: with rware's raw coordinates, or 4x larger updates at
 half the step size, 4M steps gave about half the return or none (bench/results/rware/NOTES.md)."""
 
+CONTINUOUS_DYNAMIC = dataclasses.replace(CONTINUOUS, total_timesteps=3_000_000)
+"""The ``continuous`` preset for the moving obstacles' map, with the 3M steps its measurements used
+(docs/continuous.md)."""
+
 PRESETS = {"default": DEFAULT, "paper": PAPER, "procedural": PROCEDURAL, "procedural_mlp": PROCEDURAL_MLP,
-           "fleet": FLEET, "continuous": CONTINUOUS, "rware": RWARE}
+           "fleet": FLEET, "continuous": CONTINUOUS, "continuous_dynamic": CONTINUOUS_DYNAMIC, "rware": RWARE}
 
 STUDY_TABLE3 = {
     "Task Completion Rate": "Stable across 20 locations",
