@@ -28,9 +28,11 @@ QUICK = ["--total-timesteps", "4096", "--num-envs", "4", "--num-steps", "16", "-
          "--eval-every", "4"]
 
 
-def command_of(task: str, learner: str, out: Path, seeds: int, devices: int, quick: bool) -> list[str]:
+def command_of(task: str, learner: str, out: Path, seeds: int, devices: int, quick: bool,
+               tie_order: str | None = None) -> list[str]:
+    order = ["--tie-order", tie_order] if tie_order else []
     return ["train_ppo.py", "--env", task, "--num-seeds", str(seeds), "--devices", str(devices),
-            "--out", str(out / f"{task}-{learner.lower()}"), *LEARNERS[learner], *(QUICK if quick else [])]
+            "--out", str(out / f"{task}-{learner.lower()}"), *LEARNERS[learner], *order, *(QUICK if quick else [])]
 
 
 def run_pair(command: list[str]) -> None:
@@ -71,6 +73,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--learners", nargs="+", default=list(LEARNERS), choices=list(LEARNERS))
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--devices", type=int, default=2, help="host devices the seeds are split over")
+    parser.add_argument("--tie-order", choices=("set", "insertion"), default=None,
+                        help="rware's tie order (default: the environment's, set; the table's older rows: insertion)")
     parser.add_argument("--quick", action="store_true", help="tiny budgets: checks the tool, learns nothing")
     parser.add_argument("--collect", action="store_true", help="tabulate the runs already in --out, train nothing")
     args = parser.parse_args(argv)
@@ -78,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for task in args.tasks:
         for learner in args.learners:
-            command = command_of(task, learner, args.out, args.seeds, args.devices, args.quick)
+            command = command_of(task, learner, args.out, args.seeds, args.devices, args.quick, args.tie_order)
             run_dir = args.out / f"{task}-{learner.lower()}"
             if not (run_dir / "summary.json").exists():
                 if args.collect:

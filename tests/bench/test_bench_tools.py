@@ -103,3 +103,13 @@ def test_randomization_bench_widens_every_range_around_its_centre():
         np.testing.assert_allclose(float(getattr(wide, name)), value, rtol=1e-6)
     assert float(wide.start_jitter) == float(params.start_jitter)  # capped by the start cell: see the bench
     assert float(cases["1x"].gain_low) == float(params.gain_low)
+
+
+def test_rware_learning_passes_the_tie_order_only_when_asked():
+    """The learning table's older rows need ``--tie-order insertion``; without the flag the environment's own order."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from rware_learning import command_of
+
+    ippo = command_of("rware-tiny-4ag-v2", "IPPO", Path("/tmp/x"), 4, 2, False, "insertion")
+    assert ippo[ippo.index("--tie-order") + 1] == "insertion" and "local" in ippo
+    assert "--tie-order" not in command_of("rware-tiny-4ag-v2", "MAPPO", Path("/tmp/x"), 4, 2, False)

@@ -244,9 +244,13 @@ def test_continuous_learners_see_the_target_unless_told_otherwise(tmp_path):
 
 def test_the_continuous_collision_penalty_observed_obstacles_and_off_policy_settings_are_flags(tmp_path):
     command = cli_options.parse("ppo", ["--env", "Continuous-Warehouse-12x12-Dynamic-v0", "--collision-penalty", "-50",
-                                        "--observe-obstacles", "True", "--out", str(tmp_path / "c")])
+                                        "--observe-obstacles", "False", "--out", str(tmp_path / "c")])
     algo = build(command.spec, command.config, command.env)
     assert float(algo.env_params.collision_penalty) == -50.0
+    assert not algo.env.observe_obstacles and algo.env.obs_size == 11 + 32 + 5 + 3  # the route kept
+    command = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--observe-obstacles", "True",
+                                        "--out", str(tmp_path / "o")])
+    algo = build(command.spec, command.config, command.env)
     assert algo.env.observe_obstacles and algo.env.obs_size == 11 + 32 + 5 + 32 + 2 + 3  # the route last
     assert cli_options.parse("sac", ["--target-entropy", "-4", "--out", str(tmp_path / "t")]).config.target_entropy == -4.0
     annealed = cli_options.parse("td3", ["--anneal-lr", "--anneal-from", "0.5", "--out", str(tmp_path / "a")]).config
@@ -273,11 +277,14 @@ def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obsta
                                              str(tmp_path / algo)]).env.overrides()
         assert "observe_route" not in overrides and "shaping" not in overrides and overrides["observe_target"]
     for algo in ("sac", "td3", "ppo"):
-        command = cli_options.parse(algo, ["--env", dynamic, "--out", str(tmp_path / algo)])
-        overrides = command.env.overrides()
+        overrides = cli_options.parse(algo, ["--env", dynamic, "--out", str(tmp_path / algo)]).env.overrides()
         assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"],
                 overrides["observe_obstacles"]) == ("geodesic", True, True, True), algo
-    assert command.run.preset == "continuous_dynamic" and command.config.total_timesteps == 3_000_000
+    ppo = cli_options.parse("ppo", ["--env", dynamic, "--out", str(tmp_path / "p")])
+    assert ppo.run.preset == "continuous_dynamic" and ppo.config.total_timesteps == 3_000_000
+    alone = cli_options.parse("ppo", ["--env", dynamic, "--shaping", "manhattan", "--observe-route", "False",
+                                      "--observe-obstacles", "False", "--out", str(tmp_path / "alone")])
+    assert build(alone.spec, alone.config, alone.env).env.obs_size == 11 + 32 + 5  # the docs' target-alone rows
     assert "observe_route" not in cli_options.parse("ppo", ["--env", "Continuous-Warehouse-12x12-v0", "--out",
                                                             str(tmp_path / "ppo")]).env.overrides()
     command = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--observe-route", "False",

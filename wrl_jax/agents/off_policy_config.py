@@ -258,8 +258,8 @@ ROUTE_NAMES = ("Continuous-Warehouse-8x8-v0", "Continuous-Warehouse-12x12-v0")
 procedural variant (no distance fields)."""
 DYNAMIC_ENV_DEFAULTS = {**ROUTE_ENV_DEFAULTS, "observe_obstacles": True}
 """Every learner's defaults on the moving obstacles' map: the route, and the obstacles seen apart from the shelves
-with the last step's contacts (with the route alone SAC delivered nothing in 180k steps, with both 92 % at 400k;
-PPO went from 98.3 % with 12.2 contact steps per episode to 99.4 % with 5.2)."""
+with the last step's contacts (PPO, 3M steps: from 98.3 % delivered with 12.2 contact steps per episode to 99.4 %
+with 5.2; SAC delivers 92 % at 400k; docs/continuous.md)."""
 OFF_POLICY_ENV_DEFAULTS = {name: ROUTE_ENV_DEFAULTS if name in ROUTE_NAMES else
                            DYNAMIC_ENV_DEFAULTS if name == DYNAMIC_NAME else CONTINUOUS_ENV_DEFAULTS
                            for name in CONTINUOUS_NAMES}
