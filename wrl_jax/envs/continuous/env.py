@@ -12,10 +12,11 @@ A network reads "the item is 2 m ahead, 1 m to the left" directly instead of hav
 rotation of a difference of coordinates; PPO learns the 8x8 map with it and not without it
 (docs/continuous.md).
 
-``observe_obstacles=True`` appends (after the target's values, before a route's) what a robot with a people detector and odometry knows beyond its
-lidar: the range along each ray to the nearest moving obstacle alone (shelves do not hide them; no
-noise) and whether the last step was blocked, by an obstacle or by a shelf or wall. With the lidar
-alone a moving obstacle reads like a shelf, and a blocked robot sees what it saw before it pushed.
+``observe_obstacles=True`` appends (after the target's values, before a route's) what a robot with a
+people detector and odometry knows beyond its lidar: the range along each ray to the nearest moving
+obstacle alone (shelves do not hide them; no noise) and whether the last step was blocked, by an
+obstacle or by a shelf or wall. With the lidar alone a moving obstacle reads like a shelf, and a
+blocked robot sees what it saw before it pushed.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ import numpy as np
 from wrl_jax.core.environment import Environment
 from wrl_jax.core.gymnax_base import spaces
 from wrl_jax.envs.continuous.dynamics import OBS_SCALARS, reset_core, transition_core
-from wrl_jax.envs.continuous.geometry import PI, TWO_PI, norm, ray_discs
+from wrl_jax.envs.continuous.geometry import PI, norm, ray_angles, ray_discs
 from wrl_jax.envs.continuous.types import ContinuousParams, ContinuousState, ResetDraws, StepDraws
 
 TARGET_FEATURES = 5
@@ -46,8 +47,7 @@ def obstacle_features(state: ContinuousState, info: dict[str, jax.Array] | None,
     """The moving obstacles seen from ``state`` (after the step): ``L`` ranges over ``lidar_range`` along the
     contract's rays to the nearest obstacle alone (1 where none is in range), then the step's two contact
     flags from ``info`` (0 at a reset, ``info=None``)."""
-    angles = state.theta + (TWO_PI * jnp.arange(num_rays, dtype=jnp.float32)) / np.float32(num_rays)
-    ranges = ray_discs(state.pos, angles, state.obstacle_pos, params.obstacle_radius)
+    ranges = ray_discs(state.pos, ray_angles(state.theta, num_rays), state.obstacle_pos, params.obstacle_radius)
     reading = jnp.minimum(ranges, params.lidar_range) / params.lidar_range
     if info is None:
         flags = jnp.zeros((OBSTACLE_FLAGS,), jnp.float32)

@@ -127,8 +127,13 @@ def ray_discs(origin: jax.Array, angles: jax.Array, centres: jax.Array, radius: 
     return jnp.min(jnp.where(ahead, t, jnp.inf), axis=-1)
 
 
+def ray_angles(theta: jax.Array, num_rays: int) -> jax.Array:
+    """The contract's ray directions ``theta + 2 pi k / L``, ``(L,)`` float32, rounded as the contract writes them."""
+    return theta + (TWO_PI * jnp.arange(num_rays, dtype=jnp.float32)) / np.float32(num_rays)
+
+
 def lidar(origin: jax.Array, theta: jax.Array, num_rays: int, shelves: jax.Array, obstacles: jax.Array,
           obstacle_radius: jax.Array) -> jax.Array:
     """Distances ``(L,)`` of the rays leaving ``origin`` at ``theta + 2 pi k / L`` (no range clip, no noise)."""
-    angles = theta + (TWO_PI * jnp.arange(num_rays, dtype=jnp.float32)) / np.float32(num_rays)
+    angles = ray_angles(theta, num_rays)
     return jnp.minimum(ray_grid(origin, angles, shelves), ray_discs(origin, angles, obstacles, obstacle_radius))
