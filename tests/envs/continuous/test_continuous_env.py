@@ -171,9 +171,9 @@ def test_observed_obstacles_are_the_rays_to_the_obstacles_alone_and_the_last_con
 
 
 def test_an_episodes_last_contacts_stay_in_final_obs_and_the_route_stays_last():
-    """Driving straight ahead into the shelves until the limit: the truncating step's observation (``final_obs``)
-    holds its contact flag, the next episode's first observation none; with the target and the route too, the
-    route's 3 values come last and every observation lies in the space."""
+    """Driving straight ahead until the limit (into a shelf, a wall or an obstacle, whichever comes first): the
+    truncating step's observation (``final_obs``) holds its contact flags, the next episode's first observation none;
+    with the target and the route too, the route's 3 values come last and every observation lies in the space."""
     from wrl_jax.envs.continuous.geodesic import route_features
 
     env, params = make_continuous(WAREHOUSE_12X12, num_obstacles=4, max_steps=70, shaping="geodesic",
