@@ -6,7 +6,9 @@ evaluation's episodes (every item, the evaluation's rounds and keys) and prints 
 - **speed**: the forward command's mean and median, the share of steps at |a0| >= 0.99, and the distance
   covered per step against the ``v_max dt`` a step allows (why SAC takes more steps than the bound);
 - **contacts**: obstacle and shelf/wall contact steps per episode, how many episodes have one, and how
-  contacts come in runs of consecutive steps (a run to the episode's end is a deadlock).
+  contacts come in runs of consecutive steps (a run to the episode's end is a deadlock);
+- **the safety stop** where the run trained with it: stop steps per episode, their runs, and how many of the
+  episodes that did not deliver end in a run of stops (held by the stop to the time limit).
 
     python bench/investigations/continuous_greedy_steps.py --run /tmp/route/sac_default
 
@@ -54,7 +56,9 @@ def episode_steps(algo, network, key, item):
         obs2, state2, _, terminated, truncated, info = env.transition(
             jax.random.fold_in(step_key, state.time), state, action, params)
         record = dict(active=~done, forward=action[0], moved=jnp.linalg.norm(state2.pos - state.pos),
-                      obstacle=info["hit_obstacle"] & ~done, shelf=(info["hit_shelf"] | info["hit_wall"]) & ~done)
+                      obstacle=info["hit_obstacle"] & ~done, shelf=(info["hit_shelf"] | info["hit_wall"]) & ~done,
+                      stop=info.get("safety_stop", jnp.zeros((), bool)) & ~done, delivered=terminated & ~done,
+                      stop_obstacle=info.get("stop_obstacle", jnp.zeros((), bool)) & ~done)
         state2 = jax.tree.map(lambda old, new: jnp.where(done, old, new), state, state2)
         return (obs2, state2, done | terminated | truncated), record
 
@@ -98,6 +102,16 @@ def main() -> None:
         print(f"        contacts per episode: obstacle {obstacle.sum() / episodes:.2f}, shelf or wall "
               f"{shelf.sum() / episodes:.2f}; episodes with one {(obstacle | shelf).any(-1).sum() / episodes:.0%}; "
               f"runs {len(runs)}, mean length {np.mean(runs) if runs else 0:.1f}, longest {max(runs, default=0)}")
+        if env.safety_margin is not None:
+            stop = record["stop"][s] & valid
+            stops = contact_runs(stop)
+            failed = ~record["delivered"][s].any(-1) & valid[..., 0]
+            held = failed & stop[..., -1]  # still stopped at the time limit
+            by_obstacle = held & record["stop_obstacle"][s][..., -1]
+            print(f"        safety stops per episode {stop.sum() / episodes:.2f}; runs {len(stops)}, mean length "
+                  f"{np.mean(stops) if stops else 0:.1f}, longest {max(stops, default=0)}; not delivered "
+                  f"{int(failed.sum())}, of them held by the stop at the time limit {int(held.sum())} "
+                  f"({int(by_obstacle.sum())} by an obstacle)")
 
 
 if __name__ == "__main__":

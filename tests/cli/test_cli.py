@@ -261,6 +261,23 @@ def test_the_continuous_collision_penalty_observed_obstacles_and_off_policy_sett
         cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--collision-penalty", "-5", "--out", str(tmp_path / "x")])
 
 
+def test_the_safety_stop_is_a_flag_of_the_continuous_warehouse_and_refused_with_randomization(tmp_path):
+    dynamic = "Continuous-Warehouse-12x12-Dynamic-v0"
+    command = cli_options.parse("ppo", ["--env", dynamic, "--safety-stop", "True", "--out", str(tmp_path / "s")])
+    assert build(command.spec, command.config, command.env).env.safety_margin == 0.05
+    command = cli_options.parse("sac", ["--env", dynamic, "--safety-stop", "False", "--out", str(tmp_path / "n")])
+    assert build(command.spec, command.config, command.env).env.safety_margin is None
+    command = cli_options.parse("td3", ["--env", dynamic, "--safety-stop", "True", "--safety-margin", "0.1",
+                                        "--out", str(tmp_path / "m")])
+    assert build(command.spec, command.config, command.env).env.safety_margin == 0.1
+    with pytest.raises(ValueError, match="--safety-stop: continuous options"):
+        cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--safety-stop", "True", "--out", str(tmp_path / "w")])
+    command = cli_options.parse("ppo", ["--env", dynamic, "--safety-stop", "True", "--randomize", "True",
+                                        "--out", str(tmp_path / "r")])
+    with pytest.raises(ValueError, match="pass randomize=False with safety_stop"):
+        build(command.spec, command.config, command.env)
+
+
 def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obstacles_where_they_move(tmp_path):
     """SAC's and TD3's commands add geodesic shaping and ``observe_route`` on the study's maps (the procedural
     variant has no distance fields); PPO keeps the target alone there; on the moving obstacles' map every learner
@@ -272,14 +289,14 @@ def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obsta
             overrides = cli_options.parse(algo, ["--env", name, "--out", str(tmp_path / algo)]).env.overrides()
             assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"]) == (
                 "geodesic", True, True), (algo, name)
-            assert "observe_obstacles" not in overrides
+            assert "observe_obstacles" not in overrides and "safety_stop" not in overrides
         overrides = cli_options.parse(algo, ["--env", "Continuous-Procedural-Warehouse-v0", "--out",
                                              str(tmp_path / algo)]).env.overrides()
         assert "observe_route" not in overrides and "shaping" not in overrides and overrides["observe_target"]
     for algo in ("sac", "td3", "ppo"):
         overrides = cli_options.parse(algo, ["--env", dynamic, "--out", str(tmp_path / algo)]).env.overrides()
         assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"],
-                overrides["observe_obstacles"]) == ("geodesic", True, True, True), algo
+                overrides["observe_obstacles"], overrides["safety_stop"]) == ("geodesic", True, True, True, True), algo
     ppo = cli_options.parse("ppo", ["--env", dynamic, "--out", str(tmp_path / "p")])
     assert ppo.run.preset == "continuous_dynamic" and ppo.config.total_timesteps == 3_000_000
     alone = cli_options.parse("ppo", ["--env", dynamic, "--shaping", "manhattan", "--observe-route", "False",

@@ -72,6 +72,11 @@ class EnvOptions:
     observe_obstacles: bool | None = None
     """continuous environments: the ranges to the moving obstacles alone and whether the last step was blocked (by
     an obstacle, by a shelf or wall), after the target's values and before the route's"""
+    safety_stop: bool | None = None
+    """continuous environments: drop a forward command the robot's lidar says would bring it within the margin of a
+    shelf, wall or moving obstacle (a reflex under the policy; not with --randomize)"""
+    safety_margin: float | None = None
+    """continuous environments with --safety-stop True: the margin in metres beyond the robot's radius (0.05)"""
     collision_penalty: float | None = None
     """continuous environments: added to the reward of a step that touches a shelf, wall or obstacle (the contract's
     -10; the run's evaluation keeps the value, so its returns are not the contract's)"""
@@ -231,6 +236,8 @@ FAMILY_OPTIONS = {
     "observe_target": ("continuous",),
     "observe_route": ("continuous",),
     "observe_obstacles": ("continuous",),
+    "safety_stop": ("continuous",),
+    "safety_margin": ("continuous",),
     "randomize": ("continuous",),
     "collision_penalty": ("continuous",),
     "reward_type": ("rware",),

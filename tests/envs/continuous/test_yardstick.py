@@ -213,7 +213,8 @@ def scripted(pos, item, obstacles) -> ContinuousState:
     obstacles = jnp.asarray(obstacles, jnp.float32)
     return ContinuousState(pos=jnp.asarray(pos, jnp.float32), theta=jnp.float32(0.0), carrying=jnp.bool_(False),
                            item=item, time=jnp.int32(0), obstacle_pos=obstacles, obstacle_waypoint=obstacles,
-                           obstacle_from=jnp.floor(obstacles[:, ::-1]).astype(jnp.int32), gains=jnp.ones(2))
+                           obstacle_from=jnp.floor(obstacles[:, ::-1]).astype(jnp.int32), gains=jnp.ones(2),
+                           held=jnp.int32(0))
 
 
 def test_pursuit_waits_for_an_obstacle_ahead_only_and_then_steps_aside(dynamic):

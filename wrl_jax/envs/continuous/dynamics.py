@@ -95,6 +95,7 @@ def reset_core(draws: ResetDraws, params: ContinuousParams) -> tuple[jax.Array, 
         obstacle_waypoint=cell_centre(waypoints).reshape(num_obstacles, 2),
         obstacle_from=cells,
         gains=draws.gains.astype(jnp.float32),
+        held=jnp.int32(0),
     )
     reading = StepDraws(noise=jnp.zeros(2, jnp.float32), waypoint_u=draws.waypoint_u,
                         lidar_noise=draws.lidar_noise, lidar_drop=draws.lidar_drop)

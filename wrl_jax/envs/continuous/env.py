@@ -17,6 +17,12 @@ people detector and odometry knows beyond its lidar: the range along each ray to
 obstacle alone (shelves do not hide them; no noise) and whether the last step was blocked, by an
 obstacle or by a shelf or wall. With the lidar alone a moving obstacle reads like a shelf, and a
 blocked robot sees what it saw before it pushed.
+
+``safety_margin=m`` (``make(..., safety_stop=True)``) puts a reflex under the policy
+(:mod:`~wrl_jax.envs.continuous.safety`): a forward command the robot's lidar says would come within
+``robot_radius + m`` of something is dropped before the contract's step (``info["safety_stop"]``; with ``observe_obstacles`` the flags then say blocked too, and one
+more value says for how many steps in a row the robot has been held: a policy without memory can then tell a
+standstill that lasts from one that has just begun, and back out of it).
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ from wrl_jax.core.environment import Environment
 from wrl_jax.core.gymnax_base import spaces
 from wrl_jax.envs.continuous.dynamics import OBS_SCALARS, reset_core, transition_core
 from wrl_jax.envs.continuous.geometry import PI, norm, ray_angles, ray_discs
+from wrl_jax.envs.continuous.safety import safety_stop
 from wrl_jax.envs.continuous.types import ContinuousParams, ContinuousState, ResetDraws, StepDraws
 
 TARGET_FEATURES = 5
@@ -41,18 +48,25 @@ TARGET_FEATURES = 5
 OBSTACLE_FLAGS = 2
 """Values :func:`obstacle_features` appends after its rays: the last step blocked by an obstacle, by a shelf or wall."""
 
+HELD_STEPS = 10
+"""With the safety stop and ``observe_obstacles``, the held value reads ``min(held, HELD_STEPS) / HELD_STEPS``."""
+
 
 def obstacle_features(state: ContinuousState, info: dict[str, jax.Array] | None, num_rays: int,
                       params: ContinuousParams) -> jax.Array:
     """The moving obstacles seen from ``state`` (after the step): ``L`` ranges over ``lidar_range`` along the
-    contract's rays to the nearest obstacle alone (1 where none is in range), then the step's two contact
-    flags from ``info`` (0 at a reset, ``info=None``)."""
+    contract's rays to the nearest obstacle alone (1 where none is in range), then whether the step was
+    blocked, by an obstacle or by a shelf or wall: a contact, or the safety stop where it is on (0 at a
+    reset, ``info=None``)."""
     ranges = ray_discs(state.pos, ray_angles(state.theta, num_rays), state.obstacle_pos, params.obstacle_radius)
     reading = jnp.minimum(ranges, params.lidar_range) / params.lidar_range
     if info is None:
         flags = jnp.zeros((OBSTACLE_FLAGS,), jnp.float32)
     else:
-        flags = jnp.stack([info["hit_obstacle"], info["hit_shelf"] | info["hit_wall"]]).astype(jnp.float32)
+        by_obstacle, by_shelf = info["hit_obstacle"], info["hit_shelf"] | info["hit_wall"]
+        if "stop_obstacle" in info:
+            by_obstacle, by_shelf = by_obstacle | info["stop_obstacle"], by_shelf | info["stop_shelf"]
+        flags = jnp.stack([by_obstacle, by_shelf]).astype(jnp.float32)
     return jnp.concatenate([reading, flags])
 
 
@@ -86,27 +100,35 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
 
     def __init__(self, params: ContinuousParams, num_rays: int = 32, num_obstacles: int = 0,
                  name: str = "Continuous-Warehouse", observe_target: bool = False,
-                 observe_obstacles: bool = False):
+                 observe_obstacles: bool = False, safety_margin: float | None = None):
         super().__init__(params)
         self.height, self.width = (int(n) for n in params.shelves.shape)
         self.num_rays, self.num_obstacles = int(num_rays), int(num_obstacles)
         self.max_items = int(params.items.shape[0])
         self.observe_target = bool(observe_target)
         self.observe_obstacles = bool(observe_obstacles)
+        self.safety_margin = None if safety_margin is None else float(safety_margin)
+        if self.safety_margin is not None:
+            self.event_metrics = MappingProxyType({**self.event_metrics, "safety_stop": "safety_stops_sum"})
         self._name = name
 
     def static_config(self) -> tuple:
         return (self.height, self.width, self.num_rays, self.num_obstacles, self.max_items, self.observe_target,
-                self.observe_obstacles)
+                self.observe_obstacles, self.safety_margin)
 
     @property
     def name(self) -> str:
         return self._name
 
     @property
+    def observe_held(self) -> bool:
+        """Whether the view ends its obstacles' values with how long the robot has been held (the stop's)."""
+        return self.observe_obstacles and self.safety_margin is not None
+
+    @property
     def obs_size(self) -> int:
         return (OBS_SCALARS + self.num_rays + (TARGET_FEATURES if self.observe_target else 0)
-                + (self.num_rays + OBSTACLE_FLAGS if self.observe_obstacles else 0))
+                + (self.num_rays + OBSTACLE_FLAGS if self.observe_obstacles else 0) + int(self.observe_held))
 
     def observation(self, obs: jax.Array, state: ContinuousState, info: dict[str, jax.Array] | None,
                     params: ContinuousParams) -> jax.Array:
@@ -117,6 +139,8 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
             parts.append(target_features(obs, self.width, self.height))
         if self.observe_obstacles:
             parts.append(obstacle_features(state, info, self.num_rays, params))
+        if self.observe_held:
+            parts.append((jnp.minimum(state.held, HELD_STEPS).astype(jnp.float32) / HELD_STEPS)[None])
         return jnp.concatenate(parts) if len(parts) > 1 else obs
 
     @property
@@ -125,8 +149,9 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
         return 2
 
     def __repr__(self) -> str:
+        safety = "" if self.safety_margin is None else f", safety_margin={self.safety_margin}"
         return (f"ContinuousWarehouse({self._name}, {self.height}x{self.width}, rays={self.num_rays}, "
-                f"obstacles={self.num_obstacles})")
+                f"obstacles={self.num_obstacles}{safety})")
 
     # ------------------------------------------------------------ draws
     def reset_draws(self, key: jax.Array, params: ContinuousParams) -> ResetDraws:
@@ -175,9 +200,25 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
 
     def transition(self, key: jax.Array, state: ContinuousState, action: Any, params: ContinuousParams):
         self.check_action(action)
-        obs, reached, reward, terminated, truncated, info = transition_core(state, action, self.step_draws(key, params),
-                                                                            params)
+        obs, reached, reward, terminated, truncated, info = self.contract_step(key, state, action, params)
         return self.observation(obs, reached, info, params), reached, reward, terminated, truncated, info
+
+    def contract_step(self, key: jax.Array, state: ContinuousState, action: Any, params: ContinuousParams):
+        """The contract's transition from this step's draws, behind the safety stop where it is on, and the
+        count of steps the robot has been held (``state.held``: a contact or the stop, in a row)."""
+        if self.safety_margin is None:
+            obs, reached, reward, terminated, truncated, info = transition_core(state, action,
+                                                                                self.step_draws(key, params), params)
+            held = info["collision"]
+        else:
+            action, stop_obstacle, stop_shelf = safety_stop(state, action, self.num_rays, self.safety_margin, params)
+            obs, reached, reward, terminated, truncated, info = transition_core(state, action,
+                                                                                self.step_draws(key, params), params)
+            info = {**info, "safety_stop": stop_obstacle | stop_shelf, "stop_obstacle": stop_obstacle,
+                    "stop_shelf": stop_shelf}
+            held = info["collision"] | info["safety_stop"]
+        reached = reached.replace(held=jnp.where(held, state.held + 1, 0).astype(jnp.int32))
+        return obs, reached, reward, terminated, truncated, info
 
     def get_obs(self, state: ContinuousState, params: ContinuousParams | None = None, key=None) -> jax.Array:
         raise NotImplementedError("the observation holds the applied command: read it from reset or step")
@@ -211,7 +252,7 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
         low = -high
         if self.observe_obstacles:  # the obstacles' ranges and the contact flags lie in [0, 1]
             start = OBS_SCALARS + self.num_rays + (TARGET_FEATURES if self.observe_target else 0)
-            low[start:start + self.num_rays + OBSTACLE_FLAGS] = 0.0
+            low[start:start + self.num_rays + OBSTACLE_FLAGS + int(self.observe_held)] = 0.0
         return spaces.Box(low=low, high=high, shape=(self.obs_size,), dtype=jnp.float32)
 
     def state_space(self, params: ContinuousParams | None = None) -> spaces.Dict:

@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from wrl_jax.envs.continuous import procedural_evaluation
-from wrl_jax.envs.continuous.dynamics import reset_core, transition_core
+from wrl_jax.envs.continuous.dynamics import reset_core
 from wrl_jax.envs.continuous.env import ContinuousWarehouse
 from wrl_jax.envs.continuous.geometry import norm
 from wrl_jax.envs.continuous.procedural_layouts import (
@@ -46,7 +46,7 @@ from wrl_jax.envs.continuous.procedural_layouts import (
     slot_layout,
     with_layout_index,
 )
-from wrl_jax.envs.continuous.registration import DEFAULTS, make_continuous
+from wrl_jax.envs.continuous.registration import DEFAULTS, make_continuous, stop_margin
 from wrl_jax.envs.procedural.generators import GeneratorConfig
 from wrl_jax.envs.procedural.pool import generate_pool, pool_hashes
 
@@ -73,14 +73,16 @@ class ProceduralContinuousWarehouse(ContinuousWarehouse):
 
     def __init__(self, params: ProceduralContinuousParams, generator: GeneratorConfig, pool_seed: int = 0,
                  num_rays: int = 32, num_obstacles: int = 0, name: str = NAME, observe_target: bool = False,
-                 observe_obstacles: bool = False):
+                 observe_obstacles: bool = False, safety_margin: float | None = None):
         super().__init__(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
-                         observe_target=observe_target, observe_obstacles=observe_obstacles)
+                         observe_target=observe_target, observe_obstacles=observe_obstacles,
+                         safety_margin=safety_margin)
         self.generator = generator
         self.pool_seed = int(pool_seed)
         self.plain = ContinuousWarehouse(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
                                          observe_target=observe_target,
-                                         observe_obstacles=observe_obstacles).without_default_params()
+                                         observe_obstacles=observe_obstacles,
+                                         safety_margin=safety_margin).without_default_params()
 
     def static_config(self) -> tuple:
         return (*super().static_config(), self.generator)
@@ -105,8 +107,7 @@ class ProceduralContinuousWarehouse(ContinuousWarehouse):
                    params: ProceduralContinuousParams):
         self.check_action(action)
         layout = layout_params(params, state.layout_index)
-        obs, reached, reward, terminated, truncated, info = transition_core(state, action, self.step_draws(key, layout),
-                                                                            layout)
+        obs, reached, reward, terminated, truncated, info = self.contract_step(key, state, action, layout)
         return self.observation(obs, reached, info, layout), reached, reward, terminated, truncated, info
 
     def is_terminated(self, state: ProceduralContinuousState, params: ProceduralContinuousParams) -> jax.Array:
@@ -151,6 +152,7 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
                                min_shape: tuple[int, int] = (8, 8), num_rays: int = 32, num_obstacles: int = 0,
                                max_steps: int | None = None, randomize: bool = True, name: str = NAME,
                                observe_target: bool = False, observe_obstacles: bool = False,
+                               safety_stop: bool = False, safety_margin: float | None = None,
                                **overrides: Any) -> tuple[ProceduralContinuousWarehouse, ProceduralContinuousParams]:
     """``(env, params)``: ``pool_size`` generated layouts of ``min_shape..max_shape`` from ``seed``.
 
@@ -158,7 +160,7 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     ``max_items`` 8, ``density``...) and any constant of the contract (``make_continuous``'s, e.g.
     ``dt``, ``collision_penalty``). ``max_steps`` defaults to :func:`default_max_steps` of ``max_shape``.
     ``observe_target`` and ``observe_obstacles`` append the target and the moving obstacles seen from the robot,
-    as on the plain environment.
+    as on the plain environment; ``safety_stop`` (with ``randomize=False``) turns on the safety stop.
 
     Raises:
         ValueError: naming the setting: an unknown override (``shaping`` and ``observe_route``, which need a
@@ -190,7 +192,8 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     # The template checks and builds every contract constant from slot 0 (the layout fields are then the pool's).
     _, template = make_continuous(slot_layout(pool.layouts, 0), max_steps=max_steps, num_rays=num_rays,
                                   num_obstacles=0, randomize=randomize, observe_target=observe_target,
-                                  observe_obstacles=observe_obstacles, **overrides)
+                                  observe_obstacles=observe_obstacles, safety_stop=safety_stop,
+                                  safety_margin=safety_margin, **overrides)
     eligible = _obstacle_masks(pool.layouts)
     if num_obstacles:
         counts = np.asarray(eligible.sum(axis=(1, 2)))
@@ -203,5 +206,6 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     params = layout_params(ProceduralContinuousParams(**fields, pool=pool.layouts, pool_obstacle_cells=eligible), 0)
     env = ProceduralContinuousWarehouse(params, generator, pool_seed=seed, num_rays=num_rays,
                                         num_obstacles=num_obstacles, name=name, observe_target=observe_target,
-                                        observe_obstacles=observe_obstacles)
+                                        observe_obstacles=observe_obstacles,
+                                        safety_margin=stop_margin(safety_stop, safety_margin, randomize))
     return env, params

@@ -13,6 +13,7 @@ import numpy as np
 
 from wrl_jax.envs.continuous import geodesic
 from wrl_jax.envs.continuous.env import ContinuousWarehouse
+from wrl_jax.envs.continuous.safety import SAFETY_MARGIN
 from wrl_jax.envs.continuous.types import ContinuousParams
 from wrl_jax.envs.warehouse import maps
 from wrl_jax.envs.warehouse.layout import Layout, parse
@@ -55,6 +56,7 @@ def obstacle_cells(layout: Layout) -> np.ndarray:
 def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_rays: int = 32,
                     num_obstacles: int = 0, name: str = "Continuous-Warehouse", shaping: str = "manhattan",
                     observe_target: bool = False, observe_route: bool = False, observe_obstacles: bool = False,
+                    safety_stop: bool = False, safety_margin: float | None = None,
                     **overrides: Any) -> tuple[ContinuousWarehouse, ContinuousParams]:
     """``(env, params)`` for ``layout`` (a :class:`Layout` or an ASCII map of SPEC.md).
 
@@ -63,14 +65,16 @@ def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_r
     appends the target seen from the robot to the observation (:func:`~.env.target_features`);
     ``observe_route=True`` (with geodesic shaping, whose fields it reads) appends the way there
     (:func:`~.geodesic.route_features`); ``observe_obstacles=True`` appends the moving obstacles' ranges and the
-    last step's contacts (:func:`~.env.obstacle_features`). All four are for learners; the registered names are
-    the contract's.
+    last step's contacts (:func:`~.env.obstacle_features`); ``safety_stop=True`` drops a forward command the lidar says
+    would come within ``robot_radius + safety_margin`` of something (:mod:`~.safety`; the margin 0.05 m unless
+    given). All five are for learners; the registered names are the contract's.
 
     Raises:
         ValueError: naming the problem: an unknown override or shaping, a non-positive length or speed, a
             ``max_steps`` missing for a layout other than the study's, too few cells for the
-            obstacles, a gain range that is not ``0 < low <= high``, or ``observe_route`` without
-            geodesic shaping.
+            obstacles, a gain range that is not ``0 < low <= high``, ``observe_route`` without
+            geodesic shaping, a ``safety_stop`` with ``randomize``, or a ``safety_margin`` out of
+            ``[0, 1)`` or without ``safety_stop``.
     """
     layout = parse(layout) if isinstance(layout, str) else layout
     unknown = sorted(set(overrides) - set(DEFAULTS))
@@ -115,7 +119,7 @@ def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_r
         goal_cell=jnp.asarray(layout.goal, jnp.int32), items=jnp.asarray(items),
         num_items=jnp.asarray(len(layout.items), jnp.int32), obstacle_cells=jnp.asarray(eligible))
     for flag, value in (("observe_target", observe_target), ("observe_route", observe_route),
-                        ("observe_obstacles", observe_obstacles)):
+                        ("observe_obstacles", observe_obstacles), ("safety_stop", safety_stop)):
         if not isinstance(value, (bool, np.bool_)):
             raise ValueError(f"{flag} must be True or False, got {value!r}")
     if observe_route and shaping != "geodesic":
@@ -123,8 +127,26 @@ def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_r
                          "with it (--shaping geodesic), or observe_route=False (--observe-route False); "
                          f"got shaping={shaping!r}")
     env = ContinuousWarehouse(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
-                              observe_target=bool(observe_target), observe_obstacles=bool(observe_obstacles))
+                              observe_target=bool(observe_target), observe_obstacles=bool(observe_obstacles),
+                              safety_margin=stop_margin(safety_stop, safety_margin, bool(settings["randomize"])))
     return geodesic.with_fields(env, params, bool(observe_route)) if shaping == "geodesic" else (env, params)
+
+
+def stop_margin(safety_stop: bool, margin: Any, randomize: bool) -> float | None:
+    """The safety stop's margin (``None``: the stop is off), or a ``ValueError`` naming what is wrong."""
+    if margin is not None and (isinstance(margin, bool) or not isinstance(margin, (int, float, np.integer,
+                                                                                   np.floating))
+                               or not 0 <= float(margin) < 1):
+        raise ValueError(f"safety_margin must be metres in [0, 1), got {margin!r}")
+    if not safety_stop:
+        if margin is not None:
+            raise ValueError("safety_margin is the safety stop's: pass safety_stop=True with it (--safety-stop True)")
+        return None
+    if randomize:
+        raise ValueError("the safety stop checks the nominal command against the exact lidar, which randomized "
+                         "gains and noise would make unsafe: pass randomize=False with safety_stop, or no "
+                         "safety_stop")
+    return SAFETY_MARGIN if margin is None else float(margin)
 
 
 NAMED_MAPS = {"8x8": maps.WAREHOUSE_8X8, "12x12": maps.WAREHOUSE_12X12}

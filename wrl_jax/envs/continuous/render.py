@@ -92,7 +92,7 @@ def lidar_from_obs(obs: jax.Array, params: ContinuousParams, num_rays: int) -> j
 
     ``num_rays`` is the environment's ``L`` (``env.num_rays``): the rays follow the contract's 11 values;
     the learners' options come after them in this order: ``observe_target``'s 5 values, ``observe_obstacles``'
-    ``L + 2``, ``observe_route``'s 3.
+    ``L + 2`` (``L + 3`` with the safety stop), ``observe_route``'s 3.
     """
     return obs[..., OBS_SCALARS:OBS_SCALARS + num_rays] * params.lidar_range
 

@@ -1,0 +1,141 @@
+"""The safety stop (``safety_margin``): what it stops, what it lets through, and that nothing it lets through
+collides on states drawn next to shelves, walls and obstacles.
+
+The states are the 12x12 map with 4 obstacles, the robot anywhere it fits and obstacle 0 within 0.9 m of it,
+at full speed forwards or backwards and any turn: one compiled program per margin.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from wrl_jax.envs.continuous.dynamics import transition_core
+from wrl_jax.envs.continuous.geometry import hits_shelf, hits_wall, norm
+from wrl_jax.envs.continuous.registration import make_continuous
+from wrl_jax.envs.continuous.safety import SAFETY_MARGIN, safety_stop
+from wrl_jax.envs.warehouse.maps import WAREHOUSE_12X12
+
+
+@pytest.fixture(scope="module")
+def dynamic():
+    return make_continuous(WAREHOUSE_12X12, num_obstacles=4, observe_obstacles=True)
+
+
+def near_miss(env, params, key):
+    """A state with the robot anywhere it fits, obstacle 0 near it, and an action at full speed."""
+    k_reset, k_pos, k_theta, k_action, k_obstacle = jax.random.split(key, 5)
+    _, state = env.reset(k_reset, params)
+    height, width = params.shelves.shape
+    pos = jax.random.uniform(k_pos, (2,), maxval=jnp.array([width, height], jnp.float32))
+    obstacles = state.obstacle_pos.at[0].set(pos + jax.random.uniform(k_obstacle, (2,), minval=-0.9, maxval=0.9))
+    state = state.replace(pos=pos, theta=jax.random.uniform(k_theta, (), minval=-np.pi, maxval=np.pi),
+                          obstacle_pos=obstacles)
+    action = jax.random.uniform(k_action, (2,), minval=-1.0, maxval=1.0)
+    action = action.at[0].set(jnp.sign(action[0]))
+    fits = (~hits_shelf(pos, params.robot_radius, params.shelves) & ~hits_wall(pos, params.robot_radius, width, height)
+            & jnp.all(norm(pos[None] - obstacles) >= params.robot_radius + params.obstacle_radius))
+    return state, action, fits
+
+
+def collisions_through(env, params, margin, count=20_000):
+    """``(states that fit, collisions unfiltered, collisions through the stop, stops)`` over ``count`` draws."""
+
+    def one(key):
+        state, action, fits = near_miss(env, params, key)
+        draws = env.step_draws(key, params)
+        filtered, by_obstacle, by_shelf = safety_stop(state, action, env.num_rays, margin, params)
+        before = transition_core(state, action, draws, params)[-1]["collision"]
+        after = transition_core(state, filtered, draws, params)[-1]["collision"]
+        return fits, fits & before, fits & after, fits & (by_obstacle | by_shelf)
+
+    out = jax.jit(jax.vmap(one))(jax.random.split(jax.random.key(7), count))
+    return tuple(int(np.asarray(x).sum()) for x in out)
+
+
+def test_nothing_the_stop_lets_through_collides_and_without_a_margin_something_does(dynamic):
+    env, params = dynamic
+    fits, before, after, stops = collisions_through(env, params, SAFETY_MARGIN)
+    assert fits > 5_000 and before > 500  # the draws do meet things
+    assert after == 0 and stops >= before
+    # At margin 0 a shelf corner between two rays slips through: the margin is what covers the rays' spacing.
+    assert collisions_through(env, params, 0.0)[2] > 0
+
+
+def test_the_stop_drops_the_forward_command_only_and_lets_the_robot_back_away(dynamic):
+    env, params = dynamic
+    _, state = env.reset(jax.random.key(0), params)
+    wall = state.replace(pos=jnp.array([0.3, 1.5], jnp.float32), theta=jnp.float32(np.pi))  # touching the left wall
+    action, by_obstacle, by_shelf = safety_stop(wall, jnp.array([0.8, 0.5], jnp.float32), 32, SAFETY_MARGIN, params)
+    assert bool(by_shelf) and not bool(by_obstacle)
+    np.testing.assert_array_equal(np.asarray(action), [0.0, 0.5])  # the turn stays
+    away, *stops = safety_stop(wall, jnp.array([-0.8, 0.0], jnp.float32), 32, SAFETY_MARGIN, params)
+    assert not any(bool(s) for s in stops) and float(away[0]) == np.float32(-0.8)
+    # Turning on the spot is never stopped, however close things are.
+    assert not any(bool(s) for s in safety_stop(wall, jnp.array([0.0, 1.0], jnp.float32), 32, SAFETY_MARGIN,
+                                                params)[1:])
+
+
+def test_the_environment_with_the_stop_reports_it_and_otherwise_steps_as_without(dynamic):
+    env, params = dynamic
+    guarded, _ = make_continuous(WAREHOUSE_12X12, num_obstacles=4, observe_obstacles=True, safety_stop=True)
+    assert guarded.safety_margin == SAFETY_MARGIN
+    assert guarded.event_metrics["safety_stop"] == "safety_stops_sum" and "safety_stop" not in env.event_metrics
+    key = jax.random.key(3)
+    _, state = env.reset(key, params)
+    # Row 1 of the 12x12 map is open: the robot at x 4.85 faces obstacle 0 at x 5.5, 0.05 m beyond contact.
+    state = state.replace(pos=jnp.array([4.85, 1.5], jnp.float32), theta=jnp.float32(0.0),
+                          obstacle_pos=state.obstacle_pos.at[0].set(jnp.array([5.5, 1.5], jnp.float32)))
+    forward = jnp.array([1.0, 0.0], jnp.float32)
+    free = jnp.array([-1.0, 0.0], jnp.float32)  # backwards, away from the obstacle
+    plain = env.transition(key, state, forward, params)
+    stopped = guarded.transition(key, state, forward, params)
+    assert bool(plain[-1]["collision"]) and bool(plain[-1]["hit_obstacle"])
+    info = stopped[-1]
+    assert not bool(info["collision"]) and bool(info["safety_stop"]) and bool(info["stop_obstacle"])
+    assert float(stopped[0][4]) == 0.0  # the applied command is 0
+    assert float(stopped[0][-3]) == 1.0 and float(stopped[0][-1]) == np.float32(0.1)  # blocked by an obstacle, held 1 step
+    moved, plain_moved = guarded.transition(key, state, free, params), env.transition(key, state, free, params)
+    assert bool(jnp.all(moved[0][:-1] == plain_moved[0])) and float(moved[0][-1]) == 0.0  # and the held value
+    same = jax.tree.map(lambda a, b: bool(jnp.all(a == b)), moved[1:5], plain_moved[1:5])
+    assert all(jax.tree.leaves(same))
+
+
+@pytest.mark.parametrize(("settings", "match"), [
+    ({"safety_stop": True, "safety_margin": -0.1}, "metres in"), ({"safety_stop": True, "safety_margin": True}, "metres in"),
+    ({"safety_stop": True, "safety_margin": "0.05"}, "metres in"), ({"safety_margin": 0.1}, "pass safety_stop=True"),
+    ({"safety_stop": True, "randomize": True}, "pass randomize=False"), ({"safety_stop": 1}, "True or False")])
+def test_bad_settings_of_the_stop_are_refused_before_anything_is_built(settings, match):
+    with pytest.raises(ValueError, match=match):
+        make_continuous(WAREHOUSE_12X12, num_obstacles=4, **settings)
+
+
+def test_the_procedural_variant_takes_the_stop_without_randomization():
+    from wrl_jax.envs.continuous.procedural import make_continuous_procedural
+
+    env, _ = make_continuous_procedural(pool_size=4, randomize=False, safety_stop=True, safety_margin=0.1)
+    assert env.safety_margin == 0.1 and env.plain.safety_margin == 0.1
+    with pytest.raises(ValueError, match="pass randomize=False"):
+        make_continuous_procedural(pool_size=4, safety_stop=True)
+
+
+def test_the_view_counts_the_steps_the_robot_is_held_and_forgets_them_once_it_moves(dynamic):
+    env, params = dynamic
+    guarded, _ = make_continuous(WAREHOUSE_12X12, num_obstacles=4, observe_obstacles=True, safety_stop=True)
+    assert guarded.obs_size == env.obs_size + 1 and not env.observe_held
+    key = jax.random.key(3)
+    _, state = env.reset(key, params)
+    # The robot faces the left wall on the open row 1, 0.02 m beyond touching it.
+    state = state.replace(pos=jnp.array([0.32, 1.5], jnp.float32), theta=jnp.float32(np.pi))
+    forward, back = jnp.array([1.0, 0.0], jnp.float32), jnp.array([-1.0, 0.0], jnp.float32)
+    space = guarded.observation_space(params)
+    for steps in range(1, 13):  # held by the stop
+        obs, state_g, *_ = guarded.transition(key, state if steps == 1 else state_g, forward, params)
+        assert int(state_g.held) == steps and float(obs[-1]) == np.float32(min(steps, 10) / 10)
+        assert bool(space.contains(obs))
+    obs, state_g, *_ = guarded.transition(key, state_g, back, params)
+    assert int(state_g.held) == 0 and float(obs[-1]) == 0.0
+    _, plain, *_, info = env.transition(key, state, forward, params)  # without the stop: a contact, counted too
+    assert bool(info["hit_wall"]) and int(plain.held) == 1
