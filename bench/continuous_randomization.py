@@ -91,6 +91,9 @@ def evaluate(run_dir: Path, rounds: int) -> dict:
     runners, _ = checkpoint.load(run_dir, trainer.template())
     networks = jax.vmap(algo.network_params)(runners)
     env = algo.env
+    if env.safety_margin is not None:  # the conditions switch randomization on in params, past the build's check
+        raise ValueError(f"{run_dir} trained with the safety stop, which randomization would make unsafe: train "
+                         "with --safety-stop False to measure randomization")
 
     @jax.jit
     def episodes(networks, params):

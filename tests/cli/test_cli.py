@@ -274,7 +274,7 @@ def test_the_safety_stop_is_a_flag_of_the_continuous_warehouse_and_refused_with_
         cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--safety-stop", "True", "--out", str(tmp_path / "w")])
     command = cli_options.parse("ppo", ["--env", dynamic, "--safety-stop", "True", "--randomize", "True",
                                         "--out", str(tmp_path / "r")])
-    with pytest.raises(ValueError, match="pass randomize=False with safety_stop"):
+    with pytest.raises(ValueError, match="turn it off with --safety-stop False"):
         build(command.spec, command.config, command.env)
 
 

@@ -283,3 +283,16 @@ def test_the_documented_fleet_command_parses():
     assert all(isinstance(v, float) for v in grid["block_penalty"])
     with pytest.raises(ValueError, match="unknown field 'num_robot'"):
         sweep_cli.parse_sets(["num_robot=2"], PPOConfig, FLEET)
+
+
+def test_set_checks_environment_options_over_the_learners_defaults():
+    """The safety stop's margin is an option only where the stop is on, as the learners' defaults turn it on with
+    moving obstacles: --set is checked over those defaults (the sweep trains over them too)."""
+    from wrl_jax.agents import get_spec
+
+    dynamic = "Continuous-Warehouse-12x12-Dynamic-v0"
+    spec = get_spec("sac")
+    _, env = sweep_cli.parse_sets(["safety_margin=0.1"], spec.config_cls, dynamic, spec.env_defaults_for(dynamic))
+    assert env == {"safety_margin": 0.1}
+    with pytest.raises(ValueError, match="pass safety_stop=True"):
+        sweep_cli.parse_sets(["safety_margin=0.1"], spec.config_cls, dynamic)

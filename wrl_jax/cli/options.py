@@ -74,7 +74,8 @@ class EnvOptions:
     an obstacle, by a shelf or wall), after the target's values and before the route's"""
     safety_stop: bool | None = None
     """continuous environments: drop a forward command the robot's lidar says would bring it within the margin of a
-    shelf, wall or moving obstacle (a reflex under the policy; not with --randomize)"""
+    shelf, wall or moving obstacle (a reflex under the policy; not with --randomize); with --observe-obstacles the
+    view gains one value, the steps the robot has been held"""
     safety_margin: float | None = None
     """continuous environments with --safety-stop True: the margin in metres beyond the robot's radius (0.05)"""
     collision_penalty: float | None = None

@@ -124,14 +124,15 @@ def parse_grid(items: Sequence[str], config_cls: type, env_name: str | None = No
 
 
 def parse_sets(
-    items: Sequence[str], config_cls: type, env_name: str | None = None
+    items: Sequence[str], config_cls: type, env_name: str | None = None, env_defaults: dict[str, Any] | None = None
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """``--set FIELD=VALUE`` items -> (config overrides, environment overrides).
 
     A name that is not a config field is an option of ``env_name`` (default:
     the algorithm's default environment): anything ``wrl_jax.make`` accepts
     there (``shaping_coef``, the fleet's ``num_robots``, the procedural
-    ``pool_size``...), checked by calling it.
+    ``pool_size``...), checked by calling it over the learner's ``env_defaults``
+    (a ``safety_margin`` needs the stop those turn on).
     """
     env_name = env_name or default_env(config_cls)
     config_fields = {f.name for f in dataclasses.fields(config_cls)}
@@ -146,24 +147,26 @@ def parse_sets(
         except ValueError as exc:
             raise ValueError(f"--set {name}: {exc}") from None
         (config if name in config_fields else env)[name] = parsed
-    _check_env_options(env, env_name, config_fields)
+    _check_env_options(env, env_name, config_fields, env_defaults or {})
     return config, env
 
 
-def _check_env_options(env: dict[str, Any], env_name: str | None, config_fields: set[str]) -> None:
-    """Raise a ``ValueError`` naming the first ``--set`` option that ``wrl_jax.make(env_name, ...)`` rejects."""
+def _check_env_options(env: dict[str, Any], env_name: str | None, config_fields: set[str],
+                       defaults: dict[str, Any]) -> None:
+    """Raise a ``ValueError`` naming the first ``--set`` option that ``wrl_jax.make(env_name, ...)`` rejects
+    (over the learner's environment ``defaults``)."""
     import wrl_jax
 
     if not env or env_name is None:
         return
     try:
-        wrl_jax.make(env_name, **env)
+        wrl_jax.make(env_name, **{**defaults, **env})
         return
     except (ValueError, TypeError) as exc:
         joint = exc
     for name, value in env.items():
         try:
-            wrl_jax.make(env_name, **{name: value})
+            wrl_jax.make(env_name, **{**defaults, name: value})
         except (ValueError, TypeError) as exc:
             raise ValueError(f"--set: unknown field {name!r} (not a config field, and {env_name} rejects it: "
                              f"{exc}); config fields: {sorted(config_fields)}") from None
@@ -232,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
         if preset not in spec.presets:
             raise ValueError(f"unknown {spec.name} preset {preset!r}; choose from {sorted(spec.presets)}")
         env_name = args.env or spec.default_env
-        config_sets, env_sets = parse_sets(args.set, spec.config_cls, env_name)
+        config_sets, env_sets = parse_sets(args.set, spec.config_cls, env_name, spec.env_defaults_for(env_name, preset))
         config = dataclasses.replace(spec.presets[preset], **config_sets)
         grid = parse_grid(args.grid, spec.config_cls, env_name)
         if args.num_seeds < 1:

@@ -106,7 +106,8 @@ def test_the_environment_with_the_stop_reports_it_and_otherwise_steps_as_without
 @pytest.mark.parametrize(("settings", "match"), [
     ({"safety_stop": True, "safety_margin": -0.1}, "metres in"), ({"safety_stop": True, "safety_margin": True}, "metres in"),
     ({"safety_stop": True, "safety_margin": "0.05"}, "metres in"), ({"safety_margin": 0.1}, "pass safety_stop=True"),
-    ({"safety_stop": True, "randomize": True}, "pass randomize=False"), ({"safety_stop": 1}, "True or False")])
+    ({"safety_stop": True, "randomize": True}, "--safety-stop False"), ({"safety_stop": 1}, "True or False"),
+    ({"safety_stop": True, "num_rays": 16}, "pass a safety_margin of your own")])
 def test_bad_settings_of_the_stop_are_refused_before_anything_is_built(settings, match):
     with pytest.raises(ValueError, match=match):
         make_continuous(WAREHOUSE_12X12, num_obstacles=4, **settings)
@@ -117,7 +118,7 @@ def test_the_procedural_variant_takes_the_stop_without_randomization():
 
     env, _ = make_continuous_procedural(pool_size=4, randomize=False, safety_stop=True, safety_margin=0.1)
     assert env.safety_margin == 0.1 and env.plain.safety_margin == 0.1
-    with pytest.raises(ValueError, match="pass randomize=False"):
+    with pytest.raises(ValueError, match="--safety-stop False"):
         make_continuous_procedural(pool_size=4, safety_stop=True)
 
 
@@ -131,11 +132,41 @@ def test_the_view_counts_the_steps_the_robot_is_held_and_forgets_them_once_it_mo
     state = state.replace(pos=jnp.array([0.32, 1.5], jnp.float32), theta=jnp.float32(np.pi))
     forward, back = jnp.array([1.0, 0.0], jnp.float32), jnp.array([-1.0, 0.0], jnp.float32)
     space = guarded.observation_space(params)
+    state_g = state
     for steps in range(1, 13):  # held by the stop
-        obs, state_g, *_ = guarded.transition(key, state if steps == 1 else state_g, forward, params)
+        obs, state_g, *_ = guarded.transition(key, state_g, forward, params)
         assert int(state_g.held) == steps and float(obs[-1]) == np.float32(min(steps, 10) / 10)
         assert bool(space.contains(obs))
     obs, state_g, *_ = guarded.transition(key, state_g, back, params)
     assert int(state_g.held) == 0 and float(obs[-1]) == 0.0
     _, plain, *_, info = env.transition(key, state, forward, params)  # without the stop: a contact, counted too
     assert bool(info["hit_wall"]) and int(plain.held) == 1
+
+
+@pytest.mark.parametrize("variant", ["learners_default", "procedural"])
+def test_every_variant_steps_through_the_stop_and_its_view_stays_in_its_space(variant):
+    """The learners' view on the moving obstacles' map (geodesic shaping, target, obstacles, stop, route) and the
+    procedural variant: 300 auto-resetting steps of full speed ahead with a slow turn. The stop acts, nothing is
+    touched, every observation lies in the space, and ``held`` starts from 0 after every reset."""
+    from wrl_jax.envs.continuous.procedural import make_continuous_procedural
+
+    if variant == "procedural":
+        env, params = make_continuous_procedural(pool_size=4, randomize=False, num_obstacles=2, max_steps=60,
+                                                 observe_target=True, observe_obstacles=True, safety_stop=True)
+    else:
+        env, params = make_continuous(WAREHOUSE_12X12, num_obstacles=4, max_steps=60, shaping="geodesic",
+                                      observe_target=True, observe_obstacles=True, observe_route=True, safety_stop=True)
+    space = env.observation_space(params)
+
+    def one(state, key):
+        obs, state, _, terminated, truncated, info = env.step(key, state, jnp.array([1.0, 0.15], jnp.float32), params)
+        done = terminated | truncated
+        return state, (obs, done, state.held, info["safety_stop"], info["collision"])
+
+    _, state = env.reset(jax.random.key(0), params)
+    obs, done, held, stops, collisions = jax.jit(lambda s: jax.lax.scan(one, s, jax.random.split(
+        jax.random.key(1), 300)))(state)[1]
+    assert int(stops.sum()) > 0 and int(collisions.sum()) == 0
+    assert int(done.sum()) >= 4 and bool(jnp.all(jnp.where(done, held == 0, True)))
+    assert int(held.max()) > 1
+    assert all(bool(space.contains(o)) for o in np.asarray(obs)[::7])

@@ -20,9 +20,10 @@ blocked robot sees what it saw before it pushed.
 
 ``safety_margin=m`` (``make(..., safety_stop=True)``) puts a reflex under the policy
 (:mod:`~wrl_jax.envs.continuous.safety`): a forward command the robot's lidar says would come within
-``robot_radius + m`` of something is dropped before the contract's step (``info["safety_stop"]``; with ``observe_obstacles`` the flags then say blocked too, and one
-more value says for how many steps in a row the robot has been held: a policy without memory can then tell a
-standstill that lasts from one that has just begun, and back out of it).
+``robot_radius + m`` of something is dropped before the contract's step (``info["safety_stop"]``). With
+``observe_obstacles`` the flags then say blocked too, and one more value says for how many steps in a row the
+robot has been held: a policy without memory can then tell a standstill that lasts from one that has just
+begun, and back out of it.
 """
 
 from __future__ import annotations

@@ -207,5 +207,5 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     env = ProceduralContinuousWarehouse(params, generator, pool_seed=seed, num_rays=num_rays,
                                         num_obstacles=num_obstacles, name=name, observe_target=observe_target,
                                         observe_obstacles=observe_obstacles,
-                                        safety_margin=stop_margin(safety_stop, safety_margin, randomize))
+                                        safety_margin=stop_margin(safety_stop, safety_margin, randomize, num_rays))
     return env, params

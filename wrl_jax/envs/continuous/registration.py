@@ -128,12 +128,17 @@ def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_r
                          f"got shaping={shaping!r}")
     env = ContinuousWarehouse(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
                               observe_target=bool(observe_target), observe_obstacles=bool(observe_obstacles),
-                              safety_margin=stop_margin(safety_stop, safety_margin, bool(settings["randomize"])))
+                              safety_margin=stop_margin(safety_stop, safety_margin, bool(settings["randomize"]),
+                                                         num_rays))
     return geodesic.with_fields(env, params, bool(observe_route)) if shaping == "geodesic" else (env, params)
 
 
-def stop_margin(safety_stop: bool, margin: Any, randomize: bool) -> float | None:
-    """The safety stop's margin (``None``: the stop is off), or a ``ValueError`` naming what is wrong."""
+def stop_margin(safety_stop: bool, margin: Any, randomize: bool, num_rays: int) -> float | None:
+    """The safety stop's margin (``None``: the stop is off), or a ``ValueError`` naming what is wrong.
+
+    The default margin is measured for 32 rays (the gaps between rays shrink with more): with fewer, the
+    margin must be given. Randomization is refused at construction; a ``params.replace(randomize=True)``
+    afterwards is not seen here (the stop would then check the nominal command)."""
     if margin is not None and (isinstance(margin, bool) or not isinstance(margin, (int, float, np.integer,
                                                                                    np.floating))
                                or not 0 <= float(margin) < 1):
@@ -143,9 +148,12 @@ def stop_margin(safety_stop: bool, margin: Any, randomize: bool) -> float | None
             raise ValueError("safety_margin is the safety stop's: pass safety_stop=True with it (--safety-stop True)")
         return None
     if randomize:
-        raise ValueError("the safety stop checks the nominal command against the exact lidar, which randomized "
-                         "gains and noise would make unsafe: pass randomize=False with safety_stop, or no "
-                         "safety_stop")
+        raise ValueError("the safety stop (every learner's default on the moving obstacles' map) checks the nominal "
+                         "command, which randomized gains and noise would make unsafe: turn it off with "
+                         "--safety-stop False (safety_stop=False) to randomize, or leave randomize off")
+    if margin is None and num_rays < 32:
+        raise ValueError(f"the safety stop's default margin ({SAFETY_MARGIN} m) covers the gaps between 32 rays or "
+                         f"more; with num_rays={num_rays} pass a safety_margin of your own")
     return SAFETY_MARGIN if margin is None else float(margin)
 
 
