@@ -139,8 +139,8 @@ def test_the_view_counts_the_steps_the_robot_is_held_and_forgets_them_once_it_mo
         assert bool(space.contains(obs))
     obs, state_g, *_ = guarded.transition(key, state_g, back, params)
     assert int(state_g.held) == 0 and float(obs[-1]) == 0.0
-    _, plain, *_, info = env.transition(key, state, forward, params)  # without the stop: a contact, counted too
-    assert bool(info["hit_wall"]) and int(plain.held) == 1
+    _, plain, *_, info = env.transition(key, state, forward, params)  # without the stop nothing reads it
+    assert bool(info["hit_wall"]) and int(plain.held) == 0
 
 
 @pytest.mark.parametrize("variant", ["learners_default", "procedural"])

@@ -206,19 +206,18 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
 
     def contract_step(self, key: jax.Array, state: ContinuousState, action: Any, params: ContinuousParams):
         """The contract's transition from this step's draws, behind the safety stop where it is on, and the
-        count of steps the robot has been held (``state.held``: a contact or the stop, in a row)."""
+        count of steps the robot has been held (``state.held``: a contact or the stop, in a row) where the view
+        reads it (0 elsewhere: the other programs stay the ones measured)."""
         if self.safety_margin is None:
-            obs, reached, reward, terminated, truncated, info = transition_core(state, action,
-                                                                                self.step_draws(key, params), params)
-            held = info["collision"]
-        else:
-            action, stop_obstacle, stop_shelf = safety_stop(state, action, self.num_rays, self.safety_margin, params)
-            obs, reached, reward, terminated, truncated, info = transition_core(state, action,
-                                                                                self.step_draws(key, params), params)
-            info = {**info, "safety_stop": stop_obstacle | stop_shelf, "stop_obstacle": stop_obstacle,
-                    "stop_shelf": stop_shelf}
+            return transition_core(state, action, self.step_draws(key, params), params)
+        action, stop_obstacle, stop_shelf = safety_stop(state, action, self.num_rays, self.safety_margin, params)
+        obs, reached, reward, terminated, truncated, info = transition_core(state, action,
+                                                                            self.step_draws(key, params), params)
+        info = {**info, "safety_stop": stop_obstacle | stop_shelf, "stop_obstacle": stop_obstacle,
+                "stop_shelf": stop_shelf}
+        if self.observe_held:
             held = info["collision"] | info["safety_stop"]
-        reached = reached.replace(held=jnp.where(held, state.held + 1, 0).astype(jnp.int32))
+            reached = reached.replace(held=jnp.where(held, state.held + 1, 0).astype(jnp.int32))
         return obs, reached, reward, terminated, truncated, info
 
     def get_obs(self, state: ContinuousState, params: ContinuousParams | None = None, key=None) -> jax.Array:

@@ -69,7 +69,7 @@ class ContinuousState:
     obstacle_from: jax.Array  # (M, 2) int32 (row, col): the centre it last stood on
     gains: jax.Array  # (2,) gain_v, gain_w (1, 1 unless randomized)
     held: jax.Array  # int32 steps in a row a command to move left the robot in place (a contact or the safety
-    # stop); not the contract's: the environment class keeps it for the learners' view (env.py)
+    # stop); not the contract's: kept where the learners' view reads it (env.py), 0 elsewhere
 
 
 @struct.dataclass
