@@ -2,21 +2,34 @@
 collides on states drawn next to shelves, walls and obstacles.
 
 The states are the 12x12 map with 4 obstacles, the robot anywhere it fits and obstacle 0 within 0.9 m of it,
-at full speed forwards or backwards and any turn: one compiled program per margin.
+at full speed forwards or backwards and any turn: one compiled program per margin
+(``bench/investigations/continuous_safety_margin.py``, which measures the margins on more draws).
 """
 
 from __future__ import annotations
+
+import sys
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from wrl_jax.envs.continuous.dynamics import transition_core
-from wrl_jax.envs.continuous.geometry import hits_shelf, hits_wall, norm
 from wrl_jax.envs.continuous.registration import make_continuous
 from wrl_jax.envs.continuous.safety import SAFETY_MARGIN, safety_stop
 from wrl_jax.envs.warehouse.maps import WAREHOUSE_12X12
+
+
+@pytest.fixture(scope="module")
+def collisions_through():
+    """The bench script's measurement (its functions, imported from bench/investigations)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "bench" / "investigations"))
+    try:
+        from continuous_safety_margin import collisions_through
+    finally:
+        sys.path.pop(0)
+    return collisions_through
 
 
 @pytest.fixture(scope="module")
@@ -24,44 +37,14 @@ def dynamic():
     return make_continuous(WAREHOUSE_12X12, num_obstacles=4, observe_obstacles=True)
 
 
-def near_miss(env, params, key):
-    """A state with the robot anywhere it fits, obstacle 0 near it, and an action at full speed."""
-    k_reset, k_pos, k_theta, k_action, k_obstacle = jax.random.split(key, 5)
-    _, state = env.reset(k_reset, params)
-    height, width = params.shelves.shape
-    pos = jax.random.uniform(k_pos, (2,), maxval=jnp.array([width, height], jnp.float32))
-    obstacles = state.obstacle_pos.at[0].set(pos + jax.random.uniform(k_obstacle, (2,), minval=-0.9, maxval=0.9))
-    state = state.replace(pos=pos, theta=jax.random.uniform(k_theta, (), minval=-np.pi, maxval=np.pi),
-                          obstacle_pos=obstacles)
-    action = jax.random.uniform(k_action, (2,), minval=-1.0, maxval=1.0)
-    action = action.at[0].set(jnp.sign(action[0]))
-    fits = (~hits_shelf(pos, params.robot_radius, params.shelves) & ~hits_wall(pos, params.robot_radius, width, height)
-            & jnp.all(norm(pos[None] - obstacles) >= params.robot_radius + params.obstacle_radius))
-    return state, action, fits
-
-
-def collisions_through(env, params, margin, count=20_000):
-    """``(states that fit, collisions unfiltered, collisions through the stop, stops)`` over ``count`` draws."""
-
-    def one(key):
-        state, action, fits = near_miss(env, params, key)
-        draws = env.step_draws(key, params)
-        filtered, by_obstacle, by_shelf = safety_stop(state, action, env.num_rays, margin, params)
-        before = transition_core(state, action, draws, params)[-1]["collision"]
-        after = transition_core(state, filtered, draws, params)[-1]["collision"]
-        return fits, fits & before, fits & after, fits & (by_obstacle | by_shelf)
-
-    out = jax.jit(jax.vmap(one))(jax.random.split(jax.random.key(7), count))
-    return tuple(int(np.asarray(x).sum()) for x in out)
-
-
-def test_nothing_the_stop_lets_through_collides_and_without_a_margin_something_does(dynamic):
+def test_nothing_the_stop_lets_through_collides_and_without_a_margin_something_does(dynamic, collisions_through):
     env, params = dynamic
-    fits, before, after, stops = collisions_through(env, params, SAFETY_MARGIN)
+    counts = collisions_through(env, params, SAFETY_MARGIN)
+    fits, before, after, stops = (counts[name] for name in ("fits", "before", "after", "stops"))
     assert fits > 5_000 and before > 500  # the draws do meet things
     assert after == 0 and stops >= before
     # At margin 0 a shelf corner between two rays slips through: the margin is what covers the rays' spacing.
-    assert collisions_through(env, params, 0.0)[2] > 0
+    assert collisions_through(env, params, 0.0)["after"] > 0
 
 
 def test_the_stop_drops_the_forward_command_only_and_lets_the_robot_back_away(dynamic):

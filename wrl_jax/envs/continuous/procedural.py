@@ -46,7 +46,7 @@ from wrl_jax.envs.continuous.procedural_layouts import (
     slot_layout,
     with_layout_index,
 )
-from wrl_jax.envs.continuous.registration import DEFAULTS, make_continuous, stop_margin
+from wrl_jax.envs.continuous.registration import DEFAULTS, make_continuous
 from wrl_jax.envs.procedural.generators import GeneratorConfig
 from wrl_jax.envs.procedural.pool import generate_pool, pool_hashes
 
@@ -189,11 +189,12 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     generator = GeneratorConfig(max_shape=max_shape, min_shape=min_shape, **generator_kwargs)
     max_steps = default_max_steps(max_shape) if max_steps is None else max_steps
     pool = generate_pool(jax.random.key(seed), pool_size, generator)
-    # The template checks and builds every contract constant from slot 0 (the layout fields are then the pool's).
-    _, template = make_continuous(slot_layout(pool.layouts, 0), max_steps=max_steps, num_rays=num_rays,
-                                  num_obstacles=0, randomize=randomize, observe_target=observe_target,
-                                  observe_obstacles=observe_obstacles, safety_stop=safety_stop,
-                                  safety_margin=safety_margin, **overrides)
+    # The template checks and builds every contract constant from slot 0 (the layout fields are then the pool's)
+    # and the safety stop's margin.
+    template_env, template = make_continuous(slot_layout(pool.layouts, 0), max_steps=max_steps, num_rays=num_rays,
+                                             num_obstacles=0, randomize=randomize, observe_target=observe_target,
+                                             observe_obstacles=observe_obstacles, safety_stop=safety_stop,
+                                             safety_margin=safety_margin, **overrides)
     eligible = _obstacle_masks(pool.layouts)
     if num_obstacles:
         counts = np.asarray(eligible.sum(axis=(1, 2)))
@@ -207,5 +208,5 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     env = ProceduralContinuousWarehouse(params, generator, pool_seed=seed, num_rays=num_rays,
                                         num_obstacles=num_obstacles, name=name, observe_target=observe_target,
                                         observe_obstacles=observe_obstacles,
-                                        safety_margin=stop_margin(safety_stop, safety_margin, randomize, num_rays))
+                                        safety_margin=template_env.safety_margin)
     return env, params
