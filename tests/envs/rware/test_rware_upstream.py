@@ -123,6 +123,19 @@ def test_movement(name):
         assert pair.shelf(shelf) == cell
 
 
+def test_two_carriers_of_one_shelf_leave_it_with_the_last_that_moves():
+    """Not upstream: a hand-made state (unreachable by stepping) where two agents carry shelf 0. rware moves
+    the shelf agent by agent, so the later agent's new cell wins; neither carrier's cell is the larger of
+    both in x and in y here, so any other rule would put the shelf somewhere else."""
+    warehouse = upstream_warehouse(2)
+    place(warehouse, 0, 4, 25, "DOWN", carry=0)
+    place(warehouse, 1, 5, 25, "UP", carry=0)
+    pair = Pair(warehouse)
+    pair.step(F, F)
+    assert [pair.at(0), pair.at(1)] == [(4, 26), (5, 24)]
+    assert pair.shelf(0) == (5, 24) and pair.carrying(0) == pair.carrying(1) == 0
+
+
 TURNS = {  # (heading before, action, heading after)
     "turn_right_0": ("UP", R, "RIGHT"), "turn_right_1": ("RIGHT", R, "DOWN"),
     "turn_right_2": ("DOWN", R, "LEFT"), "turn_right_3": ("LEFT", R, "UP"),

@@ -171,21 +171,18 @@ def _apply_actions(state: RwareState, action: jax.Array, params: RwareParams, ti
     bonus = drop & state.has_delivered & (params.reward_type == TWO_STAGE)
     reward = jnp.where(bonus, 0.5, 0.0).astype(jnp.float32)
 
-    # A shelf moves to its carrier's new cell (the largest, were two carriers to share it); agent by agent,
-    # elementwise over the shelves (a reduction over the few agents was a scalar loop per shelf).
+    # A shelf moves to its carrier's new cell, agent by agent as rware writes it (the last carrier wins, were two
+    # to share one); elementwise over the shelves (a reduction over the few agents was a scalar loop per shelf).
     shelf_ids = jnp.arange(num_shelves, dtype=jnp.int32)
-    moved_shelf = jnp.zeros(num_shelves, bool)
-    carried_x, carried_y = jnp.zeros_like(new_x, shape=num_shelves), jnp.zeros_like(new_y, shape=num_shelves)
+    shelf_x, shelf_y = state.shelf_x, state.shelf_y
+    riding = forward & loaded
     for i in range(count):
-        ride = (state.carrying[i] == shelf_ids) & forward[i] & loaded[i]
-        carried_x = jnp.where(ride, jnp.maximum(carried_x, new_x[i]), carried_x)
-        carried_y = jnp.where(ride, jnp.maximum(carried_y, new_y[i]), carried_y)
-        moved_shelf = moved_shelf | ride
+        ride = (state.carrying[i] == shelf_ids) & riding[i]
+        shelf_x, shelf_y = jnp.where(ride, new_x[i], shelf_x), jnp.where(ride, new_y[i], shelf_y)
     next_state = state.replace(
         agent_x=new_x, agent_y=new_y, agent_dir=heading,
         carrying=jnp.where(pick, under, jnp.where(drop, NO_SHELF, state.carrying)),
-        has_delivered=state.has_delivered & ~drop, shelf_x=jnp.where(moved_shelf, carried_x, state.shelf_x),
-        shelf_y=jnp.where(moved_shelf, carried_y, state.shelf_y))
+        has_delivered=state.has_delivered & ~drop, shelf_x=shelf_x, shelf_y=shelf_y)
     return next_state, reward, forward & ((tx != x) | (ty != y))
 
 
