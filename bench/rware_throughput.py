@@ -1,12 +1,13 @@
 """Agent-steps per second of the JAX RWARE step, against rware 2.0.0's own Python step and Jumanji's RobotWarehouse.
 
-    python bench/rware_throughput.py                                   # tiny-4ag and small-4ag, B = 1, 32, 1024, 32768
+    python bench/rware_throughput.py                                   # tiny-4ag and small-4ag, B = 1 .. 32768
     python bench/rware_throughput.py --batch-sizes 1 32 1024 --seconds 1 --profile
     python bench/rware_throughput.py --jumanji-python /tmp/jumanji-venv/bin/python
     python bench/rware_throughput.py --tie-orders rware-tiny-8ag-v2        # what the exact tie order costs
 
 Ours: ``jit(lax.scan(vmap(env.step)))`` over ``T`` steps of ``B`` environments (auto-reset included), uniform
-random actions drawn up front in the timed call (:func:`draws`), compile time measured apart
+random actions and per-environment keys drawn before the timed call (:func:`inputs`), as rware's actions are,
+compile time measured apart
 (``lower().compile()``), one warm-up call, then the best of ``--repeats`` timed calls (``block_until_ready``).
 rware: ``Warehouse.step`` in a Python loop, one environment, the same random policy (actions drawn beforehand),
 reset when done. Jumanji (its own virtual environment: ``python -m venv /tmp/jumanji-venv &&
@@ -69,12 +70,9 @@ def ours_scan(env, params):
     def make(batch: int, steps: int):
         start = jax.jit(lambda key: jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(key, batch), params))
         obs, state = start(jax.random.key(1))
+        keys, actions = inputs(jax.random.key(0), steps, batch, env.num_agents)
 
-        def run(key, state, obs):
-            action_key, env_key = jax.random.split(key)
-            actions = draws(action_key, steps, batch, env.num_agents)
-            keys = jax.random.split(env_key, steps * batch).reshape(steps, batch)
-
+        def run(state, obs, keys, actions):
             def body(carry, inputs):  # the observation is carried, as a learner carries it: it stays computed
                 state, _, total = carry
                 keys, action = inputs
@@ -84,21 +82,56 @@ def ours_scan(env, params):
             (_, obs, total), _ = jax.lax.scan(body, (state, obs, jnp.zeros(())), (keys, actions))
             return obs, total
 
-        return jax.jit(run), (jax.random.key(0), state, obs)
+        return jax.jit(run), (state, obs, keys, actions)
 
     return make
 
 
 def draws(key, steps: int, batch: int, agents: int):
-    """Every step's random actions, drawn up front in the timed call (ours and Jumanji's alike).
-
-    Why up front: ``jax.random`` runs threefry as a CPU loop; drawn inside each step it cost a fifth of
-    our step, a cost of the harness, not of the environment.
-    """
+    """Every step's uniform random actions ``(T, B, N)`` (ours and Jumanji's alike)."""
     import jax
     import jax.numpy as jnp
 
     return jax.random.randint(key, (steps, batch, agents), 0, 5, dtype=jnp.int32)
+
+
+def draw_inputs(key, steps: int, batch: int, agents: int):
+    """Our step's inputs for ``T`` steps of ``B`` environments: ``(T, B)`` keys (one per environment and step,
+    as a user splits them) and the actions :func:`draws`."""
+    import jax
+
+    action_key, env_key = jax.random.split(key)
+    return jax.random.split(env_key, steps * batch).reshape(steps, batch), draws(action_key, steps, batch, agents)
+
+
+def inputs(key, steps: int, batch: int, agents: int):
+    """:func:`draw_inputs` before the timed call, as rware's actions are drawn before its loop. Drawn inside the
+    timed call they cost a sixth of our step (:func:`harness_cost` measures it): the harness, not the environment."""
+    import functools
+
+    import jax
+
+    return jax.block_until_ready(jax.jit(functools.partial(draw_inputs, steps=steps, batch=batch, agents=agents))(key))
+
+
+def harness_cost(name: str, batch: int, repeats: int) -> float:
+    """Microseconds per environment step of drawing our inputs (:func:`inputs`) inside a timed call."""
+    import jax
+    import jax.numpy as jnp
+
+    import wrl_jax
+
+    env, _ = wrl_jax.make(name)
+
+    def make(b: int, steps: int):
+        def run(key):
+            keys, actions = draw_inputs(key, steps, b, env.num_agents)
+            return jnp.sum(actions) + jnp.sum(jax.random.key_data(keys))
+
+        return jax.jit(run), (jax.random.key(0),)
+
+    row = time_scan(make, batch, env.num_agents, repeats)
+    return 1e6 * row["seconds"] / (batch * row["steps"])
 
 
 def state_bytes(env, batch: int) -> int:
@@ -185,17 +218,18 @@ def jumanji_child(name: str, batches: list[int], repeats: int) -> None:
     def make(batch: int, steps: int):
         state, timestep = jax.jit(lambda key: jax.vmap(env.reset)(jax.random.split(key, batch)))(jax.random.key(1))
 
-        def run(key, state, view):
+        actions = inputs(jax.random.key(0), steps, batch, agents)[1]  # the same actions as ours, drawn before
+
+        def run(state, view, actions):
             def body(carry, actions):
                 state, _, total = carry
                 state, timestep = jax.vmap(env.step)(state, actions)
                 return (state, timestep.observation.agents_view, total + timestep.reward.sum()), None
 
-            actions = draws(jax.random.split(key)[0], steps, batch, agents)
             (_, view, total), _ = jax.lax.scan(body, (state, view, jnp.zeros(())), actions)
             return view, total
 
-        return jax.jit(run), (jax.random.key(0), state, timestep.observation.agents_view)
+        return jax.jit(run), (state, timestep.observation.agents_view, actions)
 
     out = [time_scan(make, batch, agents, repeats) for batch in batches]
     print(json.dumps({"jumanji": jumanji.__version__, "jax": jax.__version__, "rows": out}))
@@ -251,17 +285,15 @@ def profile(name: str, batch: int, repeats: int) -> dict:
             obs, state = jax.jit(lambda key: jax.vmap(env.reset, in_axes=(0, None))(
                 jax.random.split(key, b), params))(jax.random.key(2))
 
-            def run(key, state, obs):
-                action_key, env_key = jax.random.split(key)
-                actions = draws(action_key, steps, b, n)
-                keys = jax.random.split(env_key, steps * b).reshape(steps, b)
+            keys, actions = inputs(jax.random.key(1), steps, b, n)
 
-                def body(carry, inputs):
-                    return jax.vmap(lambda *a: one_step(variant, *a))(inputs[0], *carry, inputs[1]), None
+            def run(state, obs, keys, actions):
+                def body(carry, step_inputs):
+                    return jax.vmap(lambda *a: one_step(variant, *a))(step_inputs[0], *carry, step_inputs[1]), None
 
                 return jax.lax.scan(body, (state, obs), (keys, actions))[0]
 
-            return jax.jit(run), (jax.random.key(1), state, obs)
+            return jax.jit(run), (state, obs, keys, actions)
 
         with without(variant):
             row = time_scan(make, batch, n, repeats)
@@ -277,30 +309,33 @@ def profile(name: str, batch: int, repeats: int) -> dict:
             times["no_conflicts"] + times["no_deliveries"] - times["dynamics"],
     }
     return {"id": name, "batch": batch, "us_per_env_step": times, "parts_us": parts,
-            "labels": dict(PROFILE_VARIANTS)}
+            "labels": dict(PROFILE_VARIANTS), "inputs_us": harness_cost(name, batch, repeats)}
 
 
 NOTES = ("Notes. Ours: `jit(lax.scan(vmap(env.step)))`, auto-reset included, compile time apart (in the JSON), "
-         "best of the timed calls; the random actions (and our per-environment step keys) are drawn up front inside "
-         "each timed call, for Jumanji alike (drawn inside each step, JAX's CPU loop of threefry was a fifth of our "
-         "step: harness, not environment). rware: its Python `Warehouse.step`, one environment, reset when done. "
+         "best of the timed calls; the random actions (and our per-environment step keys) are drawn before each "
+         "timed call, for Jumanji and rware alike (the cost of drawing them is under the profile when it was run). "
+         "rware: its Python `Warehouse.step`, one environment, reset when done. "
          "Jumanji: `python -m venv /tmp/jumanji-venv && /tmp/jumanji-venv/bin/pip install jumanji`, its "
          "`RobotWarehouse` (same layout, agents, sensor range, queue) behind `AutoResetWrapper`, timed as ours; "
          "its rules are not rware's (agents move one after another, a collision ends the episode, rewards are "
          "shared), so it is a speed reference only. One CPU run on a shared machine: expect noise of tens of "
-         "percent between runs; the ratios are from the same run.")
+         "percent between runs (rware's own Python step measured 11.3k to 13.1k agent-steps/s on this machine); the "
+         "ratios are from the same run.")
 """The fixed text under the tables."""
 
 
 def markdown(report: dict) -> str:
+    batches = sorted({row["batch"] for entry in report["ids"].values() for row in entry["ours"]})
     lines = [f"# RWARE throughput ({report['date']}, {report['machine']})", "",
              f"`{report['command']}`", "", "Agent-steps per second (environment steps x 4 agents), random actions.",
-             "", ("| id | ours B=1 | ours B=32 | ours B=1024 | ours B=32768 | rware (Python, 1 env) | "
-                  "ours best / rware | Jumanji best |"), "|---|---|---|---|---|---|---|---|"]
+             "", ("| id | " + " | ".join(f"ours B={b}" for b in batches)
+                  + " | rware (Python, 1 env) | ours best / rware | Jumanji best |"),
+             "|---|" + "---|" * (len(batches) + 3)]
     for name, entry in report["ids"].items():
         by_batch = {row["batch"]: row for row in entry["ours"]}
         cells = [f"{by_batch[b]['agent_steps_per_s']:,.0f}" if b in by_batch and "skipped" not in by_batch[b]
-                 else "-" for b in (1, 32, 1024, 32768)]
+                 else "-" for b in batches]
         best = max(row.get("agent_steps_per_s", 0) for row in entry["ours"])
         jumanji = entry["jumanji"]
         jumanji_best = (f"{max(r['agent_steps_per_s'] for r in jumanji['rows']):,.0f}"
@@ -326,6 +361,10 @@ def markdown(report: dict) -> str:
                   "| part | us / env-step | of the step |", "|---|---|---|"]
         lines += [f"| {part} | {us:.3f} | {us / step:.0%} |" for part, us in prof["parts_us"].items()]
         lines += [f"| whole step | {step:.3f} | 100% |"]
+        if "inputs_us" in prof:
+            lines += ["", (f"Drawing the inputs (a key per environment and step, the actions) inside the timed call "
+                           f"would add {prof['inputs_us']:.3f} us per environment step ({prof['inputs_us'] / step:.0%} "
+                           "of the step); every timing here draws them before it, as rware's actions are.")]
     lines += ["", NOTES]
     return "\n".join(lines) + "\n"
 
@@ -333,7 +372,7 @@ def markdown(report: dict) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ids", nargs="+", default=list(SIZES))
-    parser.add_argument("--batch-sizes", nargs="+", type=int, default=[1, 32, 1024, 32768])
+    parser.add_argument("--batch-sizes", nargs="+", type=int, default=[1, 32, 1024, 4096, 32768])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seconds", type=float, default=3.0, help="rware's timed Python loop, per id")
     parser.add_argument("--jumanji-python", default="/tmp/jumanji-venv/bin/python")
