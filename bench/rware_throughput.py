@@ -320,8 +320,8 @@ NOTES = ("Notes. Ours: `jit(lax.scan(vmap(env.step)))`, auto-reset included, com
          "`RobotWarehouse` (same layout, agents, sensor range, queue) behind `AutoResetWrapper`, timed as ours; "
          "its rules are not rware's (agents move one after another, a collision ends the episode, rewards are "
          "shared), so it is a speed reference only. One CPU run on a shared machine: expect noise of tens of "
-         "percent between runs (rware's own Python step measured 11.3k to 13.1k agent-steps/s on this machine); the "
-         "ratios are from the same run.")
+         "percent between runs (rware's own Python step measured 11.3k to 13.6k agent-steps/s on this machine on "
+         "different days); the ratios are from the same run.")
 """The fixed text under the tables."""
 
 
