@@ -281,7 +281,7 @@ def test_the_safety_stop_is_a_flag_of_the_continuous_warehouse_and_refused_with_
 def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obstacles_where_they_move(tmp_path):
     """SAC's and TD3's commands add geodesic shaping and ``observe_route`` on the study's maps (the procedural
     variant has no distance fields); PPO keeps the target alone there; on the moving obstacles' map every learner
-    also sees the obstacles, and PPO trains for the 3M steps measured there; the flags turn it off, and a route
+    also sees the obstacles, and PPO trains for the 3M steps measured there (SAC and TD3 for 800k); the flags turn it off, and a route
     without the fields is refused by name when the environment is built, before anything compiles."""
     dynamic = "Continuous-Warehouse-12x12-Dynamic-v0"
     for algo in ("sac", "td3"):
@@ -299,6 +299,10 @@ def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obsta
                 overrides["observe_obstacles"], overrides["safety_stop"]) == ("geodesic", True, True, True, True), algo
     ppo = cli_options.parse("ppo", ["--env", dynamic, "--out", str(tmp_path / "p")])
     assert ppo.run.preset == "continuous_dynamic" and ppo.config.total_timesteps == 3_000_000
+    for algo in ("sac", "td3"):  # twice the static maps' steps
+        command = cli_options.parse(algo, ["--env", dynamic, "--out", str(tmp_path / algo)])
+        assert command.run.preset == "dynamic" and command.config.total_timesteps == 800_000, algo
+        assert cli_options.parse(algo, ["--out", str(tmp_path / "s12")]).config.total_timesteps == 400_000, algo
     alone = cli_options.parse("ppo", ["--env", dynamic, "--shaping", "manhattan", "--observe-route", "False",
                                       "--observe-obstacles", "False", "--out", str(tmp_path / "alone")])
     assert build(alone.spec, alone.config, alone.env).env.obs_size == 11 + 32 + 5  # the docs' target-alone rows
