@@ -1,6 +1,7 @@
 """Train SAC on a continuous warehouse: ``python train_sac.py --help`` lists every flag.
 
-Defaults: Continuous-Warehouse-12x12-v0, the ``default`` preset, 4 seeds at once.
+Defaults: Continuous-Warehouse-12x12-v0, the ``default`` preset (``dynamic``, 800k steps,
+on Continuous-Warehouse-12x12-Dynamic-v0), 4 seeds at once.
 See docs/continuous.md.
 """
 

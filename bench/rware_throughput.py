@@ -6,8 +6,8 @@
     python bench/rware_throughput.py --tie-orders rware-tiny-8ag-v2        # what the exact tie order costs
 
 Ours: ``jit(lax.scan(vmap(env.step)))`` over ``T`` steps of ``B`` environments (auto-reset included), uniform
-random actions and per-environment keys drawn before the timed call (:func:`inputs`), as rware's actions are,
-compile time measured apart
+random actions drawn before the timed call (:func:`actions_before`), as rware's are, our per-environment keys
+split inside it as a user's loop splits them, compile time measured apart
 (``lower().compile()``), one warm-up call, then the best of ``--repeats`` timed calls (``block_until_ready``).
 rware: ``Warehouse.step`` in a Python loop, one environment, the same random policy (actions drawn beforehand),
 reset when done. Jumanji (its own virtual environment: ``python -m venv /tmp/jumanji-venv &&
@@ -70,21 +70,29 @@ def ours_scan(env, params):
     def make(batch: int, steps: int):
         start = jax.jit(lambda key: jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(key, batch), params))
         obs, state = start(jax.random.key(1))
-        keys, actions = inputs(jax.random.key(0), steps, batch, env.num_agents)
+        actions = actions_before(jax.random.key(0), steps, batch, env.num_agents)
 
-        def run(state, obs, keys, actions):
-            def body(carry, inputs):  # the observation is carried, as a learner carries it: it stays computed
-                state, _, total = carry
-                keys, action = inputs
+        def run(key, state, obs, actions):
+            def body(carry, action):  # the observation is carried, as a learner carries it: it stays computed
+                key, state, _, total = carry
+                key, keys = step_keys(key, batch)
                 obs, state, reward, *_ = jax.vmap(env.step, in_axes=(0, 0, 0, None))(keys, state, action, params)
-                return (state, obs, total + reward.sum()), None
+                return (key, state, obs, total + reward.sum()), None
 
-            (_, obs, total), _ = jax.lax.scan(body, (state, obs, jnp.zeros(())), (keys, actions))
+            (_, _, obs, total), _ = jax.lax.scan(body, (key, state, obs, jnp.zeros(())), actions)
             return obs, total
 
-        return jax.jit(run), (state, obs, keys, actions)
+        return jax.jit(run), (jax.random.key(2), state, obs, actions)
 
     return make
+
+
+def step_keys(key, batch: int):
+    """One step's keys as a user's loop splits them (PureJaxRL style): the carried key, and one per environment."""
+    import jax
+
+    key, sub = jax.random.split(key)
+    return key, jax.random.split(sub, batch)
 
 
 def draws(key, steps: int, batch: int, agents: int):
@@ -95,27 +103,19 @@ def draws(key, steps: int, batch: int, agents: int):
     return jax.random.randint(key, (steps, batch, agents), 0, 5, dtype=jnp.int32)
 
 
-def draw_inputs(key, steps: int, batch: int, agents: int):
-    """Our step's inputs for ``T`` steps of ``B`` environments: ``(T, B)`` keys (one per environment and step,
-    as a user splits them) and the actions :func:`draws`."""
-    import jax
-
-    action_key, env_key = jax.random.split(key)
-    return jax.random.split(env_key, steps * batch).reshape(steps, batch), draws(action_key, steps, batch, agents)
-
-
-def inputs(key, steps: int, batch: int, agents: int):
-    """:func:`draw_inputs` before the timed call, as rware's actions are drawn before its loop. Drawn inside the
-    timed call they cost a sixth of our step (:func:`harness_cost` measures it): the harness, not the environment."""
+def actions_before(key, steps: int, batch: int, agents: int):
+    """:func:`draws` before the timed call, as rware's actions are drawn before its loop (for Jumanji alike); our
+    per-environment keys are split inside it (:func:`step_keys`), as a user pays for them. Drawing the actions
+    inside would add what :func:`action_cost` measures: the harness, not the environment."""
     import functools
 
     import jax
 
-    return jax.block_until_ready(jax.jit(functools.partial(draw_inputs, steps=steps, batch=batch, agents=agents))(key))
+    return jax.block_until_ready(jax.jit(functools.partial(draws, steps=steps, batch=batch, agents=agents))(key))
 
 
-def harness_cost(name: str, batch: int, repeats: int) -> float:
-    """Microseconds per environment step of drawing our inputs (:func:`inputs`) inside a timed call."""
+def action_cost(name: str, batch: int, repeats: int) -> float:
+    """Microseconds per environment step of drawing the random actions (:func:`draws`) inside a timed call."""
     import jax
     import jax.numpy as jnp
 
@@ -124,11 +124,7 @@ def harness_cost(name: str, batch: int, repeats: int) -> float:
     env, _ = wrl_jax.make(name)
 
     def make(b: int, steps: int):
-        def run(key):
-            keys, actions = draw_inputs(key, steps, b, env.num_agents)
-            return jnp.sum(actions) + jnp.sum(jax.random.key_data(keys))
-
-        return jax.jit(run), (jax.random.key(0),)
+        return jax.jit(lambda key: jnp.sum(draws(key, steps, b, env.num_agents))), (jax.random.key(0),)
 
     row = time_scan(make, batch, env.num_agents, repeats)
     return 1e6 * row["seconds"] / (batch * row["steps"])
@@ -218,7 +214,7 @@ def jumanji_child(name: str, batches: list[int], repeats: int) -> None:
     def make(batch: int, steps: int):
         state, timestep = jax.jit(lambda key: jax.vmap(env.reset)(jax.random.split(key, batch)))(jax.random.key(1))
 
-        actions = inputs(jax.random.key(0), steps, batch, agents)[1]  # the same actions as ours, drawn before
+        actions = actions_before(jax.random.key(0), steps, batch, agents)  # the same actions as ours, drawn before
 
         def run(state, view, actions):
             def body(carry, actions):
@@ -285,15 +281,17 @@ def profile(name: str, batch: int, repeats: int) -> dict:
             obs, state = jax.jit(lambda key: jax.vmap(env.reset, in_axes=(0, None))(
                 jax.random.split(key, b), params))(jax.random.key(2))
 
-            keys, actions = inputs(jax.random.key(1), steps, b, n)
+            actions = actions_before(jax.random.key(1), steps, b, n)
 
-            def run(state, obs, keys, actions):
-                def body(carry, step_inputs):
-                    return jax.vmap(lambda *a: one_step(variant, *a))(step_inputs[0], *carry, step_inputs[1]), None
+            def run(key, state, obs, actions):
+                def body(carry, action):
+                    key, state, obs = carry
+                    key, keys = step_keys(key, b)
+                    return (key, *jax.vmap(lambda *a: one_step(variant, *a))(keys, state, obs, action)), None
 
-                return jax.lax.scan(body, (state, obs), (keys, actions))[0]
+                return jax.lax.scan(body, (key, state, obs), actions)[0]
 
-            return jax.jit(run), (state, obs, keys, actions)
+            return jax.jit(run), (jax.random.key(3), state, obs, actions)
 
         with without(variant):
             row = time_scan(make, batch, n, repeats)
@@ -309,19 +307,20 @@ def profile(name: str, batch: int, repeats: int) -> dict:
             times["no_conflicts"] + times["no_deliveries"] - times["dynamics"],
     }
     return {"id": name, "batch": batch, "us_per_env_step": times, "parts_us": parts,
-            "labels": dict(PROFILE_VARIANTS), "inputs_us": harness_cost(name, batch, repeats)}
+            "labels": dict(PROFILE_VARIANTS), "actions_us": action_cost(name, batch, repeats)}
 
 
 NOTES = ("Notes. Ours: `jit(lax.scan(vmap(env.step)))`, auto-reset included, compile time apart (in the JSON), "
-         "best of the timed calls; the random actions (and our per-environment step keys) are drawn before each "
-         "timed call, for Jumanji and rware alike (the cost of drawing them is under the profile when it was run). "
+         "best of the timed calls; the random actions are drawn before each timed call, for rware and Jumanji alike "
+         "(what drawing them inside costs is under the profile when it was run); our per-environment keys are split "
+         "inside each step of the timed call, as a user's loop splits them (rware and Jumanji advance their own "
+         "generators inside their steps). "
          "rware: its Python `Warehouse.step`, one environment, reset when done. "
          "Jumanji: `python -m venv /tmp/jumanji-venv && /tmp/jumanji-venv/bin/pip install jumanji`, its "
          "`RobotWarehouse` (same layout, agents, sensor range, queue) behind `AutoResetWrapper`, timed as ours; "
          "its rules are not rware's (agents move one after another, a collision ends the episode, rewards are "
          "shared), so it is a speed reference only. One CPU run on a shared machine: expect noise of tens of "
-         "percent between runs (rware's own Python step measured 11.3k to 13.6k agent-steps/s on this machine on "
-         "different days); the ratios are from the same run.")
+         "percent between runs; the ratios are from the same run.")
 """The fixed text under the tables."""
 
 
@@ -361,10 +360,10 @@ def markdown(report: dict) -> str:
                   "| part | us / env-step | of the step |", "|---|---|---|"]
         lines += [f"| {part} | {us:.3f} | {us / step:.0%} |" for part, us in prof["parts_us"].items()]
         lines += [f"| whole step | {step:.3f} | 100% |"]
-        if "inputs_us" in prof:
-            lines += ["", (f"Drawing the inputs (a key per environment and step, the actions) inside the timed call "
-                           f"would add {prof['inputs_us']:.3f} us per environment step ({prof['inputs_us'] / step:.0%} "
-                           "of the step); every timing here draws them before it, as rware's actions are.")]
+        if "actions_us" in prof:
+            lines += ["", (f"Drawing the random actions inside the timed call would add {prof['actions_us']:.3f} us per "
+                           f"environment step ({prof['actions_us'] / step:.0%} of the step at this batch); every timing "
+                           "here draws them before it, as rware's are. Our per-environment keys are split inside it.")]
     lines += ["", NOTES]
     return "\n".join(lines) + "\n"
 

@@ -268,12 +268,12 @@ OFF_POLICY_ENV_DEFAULTS = {name: ROUTE_ENV_DEFAULTS if name in ROUTE_NAMES else
 """SAC's and TD3's environment defaults per id."""
 
 SAC_DYNAMIC = dataclasses.replace(SAC_DEFAULT, total_timesteps=800_000)
-"""SAC's default on the moving obstacles' map: twice the steps (4 seeds: 98.8 % delivered and no contact, 3 of 4
-seeds at 98 % or more, in 26.5 min; 97.2 % and 1 of 4 in 400k)."""
+"""SAC's default on the moving obstacles' map: twice the static maps' steps (4 seeds: 98.8 % delivered and no
+contact, 3 of 4 seeds at 98 % or more, in 26.5 min; bench/results/continuous/NOTES.md has the 400k run)."""
 
 SAC_PRESETS: dict[str, SACConfig] = {"default": SAC_DEFAULT, "sb3": SB3_SAC, "dynamic": SAC_DYNAMIC}
 TD3_DYNAMIC = dataclasses.replace(TD3_DEFAULT, total_timesteps=800_000)
-"""TD3's default on the moving obstacles' map: twice the steps (4 seeds: 99.2 % delivered and no contact, every seed
-at 98 % or more, in 21 min; 96.9 % and 2 of 4 in 400k)."""
+"""TD3's default on the moving obstacles' map: twice the static maps' steps (4 seeds: 99.2 % delivered and no
+contact, every seed at 98 % or more, in 21 min)."""
 
 TD3_PRESETS: dict[str, TD3Config] = {"default": TD3_DEFAULT, "dynamic": TD3_DYNAMIC}

@@ -197,7 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--algo", required=True, help="ppo, dqn, sac or td3")
     parser.add_argument("--env", default=None, help="registered environment (default: the algorithm's)")
-    parser.add_argument("--preset", default=None, help="base hyperparameter preset (default: the algorithm's)")
+    parser.add_argument("--preset", default=None, help="base hyperparameter preset (default: the one the training command picks for --env)")
     parser.add_argument("--grid", action="append", default=[], metavar="FIELD=V1,V2,...",
                         help="a traced field and its values (repeat for more fields; the grid is their product): "
                         "a traced hyperparameter or a scalar of the environment's params (reward constants, "
