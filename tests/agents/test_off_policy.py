@@ -211,12 +211,37 @@ def test_squashed_gaussian_density_counts_tanh_and_the_box(corridor):
     (SACConfig, {"anneal_from": 1.0}, "anneal_from must be in \\[0, 1\\)"),
     (TD3Config, {"anneal_lr": 1}, "anneal_lr must be True or False"),
     (SACConfig, {"anneal_from": 0.5}, "needs anneal_lr=True"),
+    (SACConfig, {"actor_average": 1.5}, "actor_average must be in \\[0, 1\\]"),
 ])
 def test_bad_settings_are_refused_before_compiling(corridor, config_cls, changes, message):
     env, params = corridor
     algo_cls = SAC if config_cls is SACConfig else TD3
     with pytest.raises(ValueError, match=message):
         algo_cls(dataclasses.replace(tiny(config_cls), **changes), env, params)
+
+
+def test_the_actor_average_is_the_greedy_policy_and_leaves_training_alone(corridor):
+    """``actor_average``: the actor and critics train alike with or without it (up to float rounding: the extra
+    update changes XLA's fusions); the evaluated parameters are the average (at rate 1 the actor itself,
+    below it something else)."""
+    env, params = corridor
+    runs = {}
+    for rate in (0.0, 0.05, 1.0):
+        config = dataclasses.replace(tiny(SACConfig, actor_average=rate), total_timesteps=1_600, learning_starts=400)
+        algo = SAC(config, env, params)
+        runners = fast_compile.jit(make_train_seeds(algo))(training.seed_keys([0]))[0]
+        runs[rate] = (runners, jax.vmap(algo.network_params)(runners))
+    plain, averaged, whole = runs[0.0][0], runs[0.05][0], runs[1.0][0]
+    for other in (averaged, whole):
+        for got, want in zip(jax.tree.leaves((other.actor, other.critic, other.buffer.data.obs)),
+                             jax.tree.leaves((plain.actor, plain.critic, plain.buffer.data.obs)), strict=True):
+            np.testing.assert_allclose(got, want, atol=1e-5)
+    assert plain.actor_target == {} and runs[0.0][1] is not None
+    for got, want in zip(jax.tree.leaves(runs[1.0][1]), jax.tree.leaves(whole.actor), strict=True):
+        np.testing.assert_array_equal(got, want)
+    gaps = [np.abs(np.asarray(a) - np.asarray(b)).max()
+            for a, b in zip(jax.tree.leaves(runs[0.05][1]), jax.tree.leaves(averaged.actor), strict=True)]
+    assert max(gaps) > 1e-3  # the average lags the actor
 
 
 def test_annealed_learning_rate_is_constant_then_falls_towards_zero_at_the_last_step(corridor):

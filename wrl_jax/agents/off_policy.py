@@ -97,6 +97,11 @@ class OffPolicyActorCritic(Algorithm[OffPolicyRunner]):
     config_cls: type = OffPolicyConfig
     uses_actor_target: bool = False
 
+    @property
+    def averages_actor(self) -> bool:
+        """Whether ``actor_target`` holds an average of the actor that is evaluated instead of it (SAC's option)."""
+        return False
+
     def __init__(self, config: OffPolicyConfig, env: Environment, env_params: Any):
         if not isinstance(config, self.config_cls):
             raise TypeError(f"{type(self).__name__} needs a {self.config_cls.__name__}, got {type(config).__name__}")
@@ -211,7 +216,7 @@ class OffPolicyActorCritic(Algorithm[OffPolicyRunner]):
         return OffPolicyRunner(
             actor=actor,
             critic=critic,
-            actor_target=jax.tree.map(jnp.copy, actor) if self.uses_actor_target else {},
+            actor_target=jax.tree.map(jnp.copy, actor) if self.uses_actor_target or self.averages_actor else {},
             critic_target=jax.tree.map(jnp.copy, critic),
             actor_opt=self.optimizer.init(actor),
             critic_opt=self.optimizer.init(critic),

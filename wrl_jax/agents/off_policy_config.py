@@ -173,6 +173,9 @@ class SACConfig(OffPolicyConfig):
         learn_alpha: learn the temperature towards the target entropy (otherwise it stays ``initial_alpha``).
         target_entropy: the entropy of the environment's actions the temperature steers towards
             (``None``: ``-|A|``, the SAC paper's).
+        actor_average: 0 (the default) evaluates the actor as trained; above 0, a Polyak average of the actor
+            (this rate per gradient step) is kept beside it and is the policy evaluated and saved as greedy.
+            The average only reads the actor: training is unchanged (up to float rounding).
 
     Traced:
         initial_alpha: the temperature at the start.
@@ -184,9 +187,13 @@ class SACConfig(OffPolicyConfig):
     learn_alpha: bool = True
     target_entropy: float | None = None
     initial_alpha: float = 1.0
+    actor_average: float = 0.0
 
     def validate(self) -> None:
         super().validate()
+        rate = self.actor_average
+        if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 0.0 <= rate <= 1.0:
+            raise ValueError(f"{self.owner}.actor_average must be in [0, 1] (0: no average), got {rate!r}")
         value = self.target_entropy
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
                                   or not math.isfinite(value)):

@@ -92,6 +92,14 @@ class SAC(OffPolicyActorCritic):
         return self.to_env(self.sample_unit(network_params, obs, key)[0])
 
     # ----------------------------------------------------------- learning
+    @property
+    def averages_actor(self) -> bool:
+        return self.config.actor_average > 0
+
+    def network_params(self, runner: OffPolicyRunner) -> Any:
+        """The greedy policy's parameters: the actor, or its average (``actor_average``)."""
+        return runner.actor_target if self.averages_actor else runner.actor
+
     def gradient_step(self, runner: OffPolicyRunner, key: jax.Array, index: jax.Array) -> tuple[OffPolicyRunner, Metrics]:
         hyper: SACHyper = runner.hyper
         learning_rate = self.learning_rate(hyper, index)
@@ -125,6 +133,8 @@ class SAC(OffPolicyActorCritic):
             entropy_gap = jax.lax.stop_gradient(log_prob + self.target_entropy).mean()
             log_alpha, alpha_opt = self.adam_step(log_alpha, -entropy_gap, alpha_opt, learning_rate)
 
+        if self.averages_actor:
+            runner = runner.replace(actor_target=self.soft_update(runner.actor_target, actor, self.config.actor_average))
         runner = runner.replace(
             actor=actor, actor_opt=actor_opt, critic=critic, critic_opt=critic_opt, log_alpha=log_alpha,
             alpha_opt=alpha_opt, critic_target=self.soft_update(runner.critic_target, critic, hyper.tau))
