@@ -57,7 +57,8 @@ from wrl_jax.core.tracing import traced_once
 class OffPolicyRunner:
     """All mutable state of one seed: a checkpoint of it resumes training exactly.
 
-    ``actor_target`` is TD3's (SAC keeps none: an empty dict); ``log_alpha`` and
+    ``actor_target`` is TD3's target actor, or SAC's average of its actor with ``actor_average`` (else an
+    empty dict); ``log_alpha`` and
     ``alpha_opt`` are SAC's temperature and its optimizer (TD3: zero and empty).
     """
 
