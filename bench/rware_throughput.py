@@ -114,19 +114,15 @@ def actions_before(key, steps: int, batch: int, agents: int):
     return jax.block_until_ready(jax.jit(functools.partial(draws, steps=steps, batch=batch, agents=agents))(key))
 
 
-def action_cost(name: str, batch: int, repeats: int) -> float:
+def action_cost(agents: int, batch: int, repeats: int) -> float:
     """Microseconds per environment step of drawing the random actions (:func:`draws`) inside a timed call."""
     import jax
     import jax.numpy as jnp
 
-    import wrl_jax
-
-    env, _ = wrl_jax.make(name)
-
     def make(b: int, steps: int):
-        return jax.jit(lambda key: jnp.sum(draws(key, steps, b, env.num_agents))), (jax.random.key(0),)
+        return jax.jit(lambda key: jnp.sum(draws(key, steps, b, agents))), (jax.random.key(0),)
 
-    row = time_scan(make, batch, env.num_agents, repeats)
+    row = time_scan(make, batch, agents, repeats)
     return 1e6 * row["seconds"] / (batch * row["steps"])
 
 
@@ -307,7 +303,7 @@ def profile(name: str, batch: int, repeats: int) -> dict:
             times["no_conflicts"] + times["no_deliveries"] - times["dynamics"],
     }
     return {"id": name, "batch": batch, "us_per_env_step": times, "parts_us": parts,
-            "labels": dict(PROFILE_VARIANTS), "actions_us": action_cost(name, batch, repeats)}
+            "labels": dict(PROFILE_VARIANTS), "actions_us": action_cost(n, batch, repeats)}
 
 
 NOTES = ("Notes. Ours: `jit(lax.scan(vmap(env.step)))`, auto-reset included, compile time apart (in the JSON), "

@@ -33,14 +33,20 @@ from wrl_jax.envs.continuous.evaluation import EVAL_SEED, rounds
 from wrl_jax.training import checkpoint
 
 
-def load(run: Path):
-    """The run's algorithm (with its environment and overrides) and its seeds' greedy network parameters."""
+def load_run(run: Path):
+    """The run's metadata, algorithm (with its environment and overrides), trainer and seeds' runner states."""
     meta = checkpoint.read_metadata(run)
     spec = get_spec(meta["algo"])
     config = config_from_dict(spec.config_cls, meta["config"])
     algo = build(spec, config, EnvOptions(env=meta["env"], **meta.get("env_overrides", {})))
     trainer = training.Trainer(algo, meta["seeds"], training.LoopConfig(progress=False))
     runners, _ = checkpoint.load(run, trainer.template())
+    return meta, algo, trainer, runners
+
+
+def load(run: Path):
+    """The run's algorithm and its seeds' greedy network parameters."""
+    _, algo, _, runners = load_run(run)
     return algo, jax.vmap(algo.network_params)(runners)
 
 

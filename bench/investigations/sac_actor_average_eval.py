@@ -13,11 +13,7 @@ import argparse
 import json
 from pathlib import Path
 
-from wrl_jax import training
-from wrl_jax.agents import get_spec
-from wrl_jax.agents.base import config_from_dict
-from wrl_jax.cli.options import EnvOptions, build
-from wrl_jax.training import checkpoint
+from continuous_greedy_steps import load_run
 
 
 def main() -> None:
@@ -25,14 +21,9 @@ def main() -> None:
     parser.add_argument("--run", type=Path, required=True, help="a run directory of train_sac.py --actor-average R")
     parser.add_argument("--out", type=Path, help="write both summaries here as JSON")
     args = parser.parse_args()
-    meta = checkpoint.read_metadata(args.run)
-    spec = get_spec(meta["algo"])
-    config = config_from_dict(spec.config_cls, meta["config"])
-    if meta["algo"] != "sac" or not config.actor_average:
+    meta, algo, trainer, runners = load_run(args.run)
+    if meta["algo"] != "sac" or not algo.averages_actor:
         raise SystemExit(f"{args.run}: not a SAC run with --actor-average (algo {meta['algo']!r})")
-    algo = build(spec, config, EnvOptions(env=meta["env"], **meta.get("env_overrides", {})))
-    trainer = training.Trainer(algo, meta["seeds"], training.LoopConfig(progress=False))
-    runners, _ = checkpoint.load(args.run, trainer.template())
     report = {}
     for name, params in (("online", runners.actor), ("average", runners.actor_target)):
         result = trainer.evaluation.evaluate_seeds(algo.greedy_action, params, algo.env, runners.env_params,
@@ -42,7 +33,7 @@ def main() -> None:
               f"contact steps per episode {report[name]['collisions_per_episode']:.3f}")
         for row in report[name]["per_seed"]:
             print(f"  seed {row['seed']}: delivered {row['success_rate']:.3f}, "
-                  f"contacts {row['collisions_per_episode']:.2f}, steps {row['mean_steps']:.1f}")
+                  f"contacts {row['collisions_per_episode']:.2f}, steps {row['mean_steps'] or float('nan'):.1f}")
     if args.out:
         args.out.write_text(json.dumps(report, indent=1, default=float))
 
