@@ -291,14 +291,17 @@ RWARE = dataclasses.replace(
     anneal_ent=False,
     gamma=0.99,  # a delivery pays once, tens of steps after the pick-up that earned it
     gae_lambda=0.95,
-    ent_coef=0.01,
+    normalize_advantages=False,  # standardized, the advantages of a team that never delivered are noise at scale 1
+    ent_coef=0.001,  # against raw advantages: at 0.01 the bonus outweighs the first deliveries
     reward_scale=1.0,  # rware pays 1 per delivery
     total_timesteps=4_000_000,  # a tenth of the 40M EPyMARL trained its on-policy learners for
     critic="centralized",  # MAPPO: the critic reads every agent's observation (env.global_state)
 )
 """MAPPO for RWARE, the default on every ``rware-*`` id (``--critic local``: IPPO); docs/rware.md has what it
 reaches. One-hot cells and small, frequent updates: with rware's raw coordinates, or 4x larger updates at
-half the step size, 4M steps gave about half the return or none (bench/results/rware/NOTES.md)."""
+half the step size, 4M steps gave about half the return or none. Raw advantages: before the first delivery
+every reward is 0, and standardizing the critic's noise steered some seeds' teams into standing still for good
+(bench/results/rware/NOTES.md)."""
 
 CONTINUOUS_DYNAMIC = dataclasses.replace(CONTINUOUS, total_timesteps=3_000_000)
 """The ``continuous`` preset for the moving obstacles' map, with the 3M steps its measurements used

@@ -117,6 +117,7 @@ def test_train_ppo_on_rware_reports_the_hooks_numbers(tmp_path):
     assert ev["per_seed"][0]["length"] == 400 if ev["deliveries"] == 0 else 400 <= ev["per_seed"][0]["length"] <= 500
     assert summary["convergence"]["definition"] == evaluation.SOLVED_DEFINITION
     assert summary["preset"] == "rware" and summary["config"]["learning_rate"] == 1e-3  # the family's preset
+    assert summary["config"]["normalize_advantages"] is False and summary["config"]["ent_coef"] == 1e-3
     overrides = json.loads((out / "config.json").read_text())["env_overrides"]
     assert overrides == {"reward_type": "global", "sensor_range": 2, "max_inactivity_steps": 400,
                          "tie_order": "insertion"}
