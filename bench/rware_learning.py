@@ -6,7 +6,7 @@ split over the host's devices (a pair already finished in ``--out`` is read, not
 agents' rewards summed over a 500-step episode, EPyMARL's RWARE number) per seed, the seeds in which
 every agent delivers in every episode, and the run's wall time.
 
-Run from the repository root (10-20 minutes a pair alone on a 2-core CPU; longer with 4 agents)::
+Run from the repository root (7-17 minutes a pair alone on a 2-core CPU, 80 for the six)::
 
     .venv/bin/python bench/rware_learning.py --out runs/rware-learning
     .venv/bin/python bench/rware_learning.py --quick --out /tmp/rware_learning  # a smoke run
@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--devices", type=int, default=2, help="host devices the seeds are split over")
     parser.add_argument("--tie-order", choices=("set", "insertion"), default=None,
-                        help="rware's tie order (default: the environment's, set; the table's older rows: insertion)")
+                        help="rware's tie order (default: the environment's, set; insertion: learning/earlier/standardized-insertion-order/)")
     parser.add_argument("--quick", action="store_true", help="tiny budgets: checks the tool, learns nothing")
     parser.add_argument("--collect", action="store_true", help="tabulate the runs already in --out, train nothing")
     args = parser.parse_args(argv)
