@@ -1,7 +1,7 @@
-"""MAPPO and IPPO on EPyMARL's RWARE tasks, through the training command: the learning table of docs/rware.md.
+"""IPPO and MAPPO on EPyMARL's RWARE tasks, through the training command: the learning table of docs/rware.md.
 
 Each (task, learner) pair is one ``python train_ppo.py --env <task>`` run with the ``rware`` preset
-(``--critic centralized``: MAPPO, the preset's own; ``--critic local``: IPPO), all its seeds vmapped and
+(``--critic local``: IPPO, the preset's own; ``--critic centralized``: MAPPO), all its seeds vmapped and
 split over the host's devices (a pair already finished in ``--out`` is read, not retrained). The table reads each run's ``summary.json``: the greedy team's return (all
 agents' rewards summed over a 500-step episode, EPyMARL's RWARE number) per seed, the seeds in which
 every agent delivers in every episode, and the run's wall time.
