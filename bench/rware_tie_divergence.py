@@ -15,7 +15,7 @@ seed 0's policy, sampled (``--greedy``: its argmax), from the observations rware
 Run from the repository root (needs rware 2.0.0 and networkx)::
 
     .venv/bin/python bench/rware_tie_divergence.py --env rware-tiny-8ag-v2 --episodes 40
-    .venv/bin/python bench/rware_tie_divergence.py --env rware-tiny-4ag-v2 --run runs/mappo-tiny-4ag --episodes 40
+    .venv/bin/python bench/rware_tie_divergence.py --env rware-tiny-4ag-v2 --run runs/ippo-tiny-4ag --episodes 40
 """
 
 from __future__ import annotations
