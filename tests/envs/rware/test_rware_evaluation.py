@@ -161,9 +161,8 @@ def test_the_rware_preset_leaves_a_team_that_earns_nothing_near_where_it_started
     """Before a team's first delivery every reward is 0. Standardized, the critic's leftover noise becomes
     advantages of scale 1 and steers the policy anyway (on small-4ag some seeds settled into standing still and
     never delivered); the preset's raw advantages leave it near uniform. Rewards scaled to nothing stand for a
-    team that never delivers; both arms are the preset but for that switch, with the step size
-    held, over 60 small updates of IPPO, four seeds (the last 10 updates' entropy: about 1.60 raw, 0.57-1.39
-    standardized)."""
+    team that never delivers; both arms are the preset but for that switch, with the step size held, over 60
+    small updates of IPPO, four seeds (the last 10 updates' entropy: about 1.60 raw, 0.57-1.39 standardized)."""
     import dataclasses
     import math
 
