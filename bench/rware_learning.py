@@ -4,7 +4,8 @@ Each (task, learner) pair is one ``python train_ppo.py --env <task>`` run with t
 (``--critic local``: IPPO, the preset's own; ``--critic centralized``: MAPPO), all its seeds vmapped and
 split over the host's devices (a pair already finished in ``--out`` is read, not retrained). The table reads each run's ``summary.json``: the greedy team's return (all
 agents' rewards summed over a 500-step episode, EPyMARL's RWARE number) per seed, the seeds in which
-every agent delivers in every episode, and the run's wall time.
+every agent delivers in every episode, and the run's wall time; ``curves.csv`` has every run's periodic
+evaluations with the training entropy.
 
 Run from the repository root (7-17 minutes a pair alone on a 2-core CPU, 80 for the six)::
 
@@ -16,6 +17,7 @@ Run from the repository root (7-17 minutes a pair alone on a 2-core CPU, 80 for 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import subprocess
 import sys
@@ -54,6 +56,21 @@ def read_pair(task: str, learner: str, command: list[str], run_dir: Path) -> dic
             "deliveries": ev["deliveries"], "seeds_solved": ev["seeds_solved"], "seeds": len(ev["per_seed"])}
 
 
+def write_curves(out: Path, run_dirs: list[Path]) -> None:
+    """``curves.csv``: every periodic evaluation of every run (return, solved) beside the training entropy then."""
+    with (out / "curves.csv").open("w", newline="") as handle:
+        writer = csv.writer(handle, lineterminator="\n")
+        writer.writerow(["pair", "seed", "env_steps", "eval_return", "eval_solved", "entropy"])
+        for run_dir in run_dirs:
+            metrics = run_dir / "metrics.jsonl"
+            rows = [json.loads(line) for line in metrics.read_text().splitlines()] if metrics.exists() else []
+            rows = sorted((r for r in rows if r.get("eval_return") is not None),
+                          key=lambda r: (r["env_steps"], r["seed"]))
+            for r in rows:
+                writer.writerow([run_dir.name, r["seed"], r["env_steps"], f"{r['eval_return']:.4f}",
+                                 f"{r['eval_solved']:.1f}", f"{r['entropy']:.4f}"])
+
+
 def table(rows: list[dict]) -> str:
     lines = ["| task | learner | greedy return (mean, 95 % CI over seeds) | per seed | seeds solved | wall |",
              "|---|---|---|---|---|---|"]
@@ -79,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--collect", action="store_true", help="tabulate the runs already in --out, train nothing")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
-    rows = []
+    rows, run_dirs = [], []
     for task in args.tasks:
         for learner in args.learners:
             command = command_of(task, learner, args.out, args.seeds, args.devices, args.quick, args.tie_order)
@@ -89,9 +106,11 @@ def main(argv: list[str] | None = None) -> int:
                     continue
                 run_pair(command)
             rows.append(read_pair(task, learner, command, run_dir))
+            run_dirs.append(run_dir)
             print(table(rows[-1:]).splitlines()[-1], flush=True)
     (args.out / "learning.json").write_text(json.dumps(rows, indent=1) + "\n")
     (args.out / "learning.md").write_text(table(rows) + "\n")
+    write_curves(args.out, sorted(run_dirs))
     print(table(rows))
     return 0
 
