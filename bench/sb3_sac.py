@@ -24,8 +24,9 @@ target and the route seen, geodesic shaping), seeds ``0..N-1``, in one run:
 The settings map one to one (``library_kwargs``; tested for SB3): 16 environments, ``train_freq`` 1
 vector step, 2 gradient steps per vector step, batch 256, buffer 200k, 5,000 random steps first, two
 hidden layers of 128 (ReLU), learning rate 1e-3 for the actor, the critics and the temperature, Adam's
-epsilon, gamma 0.99, tau 0.005, the temperature learned from 0.1 towards the target entropy,
-time-limit cut-offs bootstrapped. Our ``reward_scale`` 0.1 is a ``TransformReward`` on the libraries'
+epsilon, gamma 0.99, tau 0.005, the temperature learned from 0.1 towards the target entropy (-6),
+time-limit cut-offs bootstrapped, the actor as trained evaluated (our default evaluates an average of it, which
+changes no training step; here every side evaluates the actor). Our ``reward_scale`` 0.1 is a ``TransformReward`` on the libraries'
 side. What differs: the initial weights (ours orthogonal, the actor's last layer scaled by 0.01; SB3
 PyTorch's uniform default, sbx flax's default), and the order of the temperature step (SB3 before the
 critics, with the old value used in that gradient step as ours does; sbx and ours after the actor).
@@ -178,6 +179,8 @@ def library_kwargs(config, library: str) -> dict[str, Any]:
         raise ValueError(f"{library}'s SAC has no n-step targets or correlated exploration noise here")
     if not config.learn_alpha:
         raise ValueError("this comparison maps the learned temperature only")
+    if config.actor_average:
+        raise ValueError(f"{library}'s SAC evaluates its actor as trained: compare with actor_average=0")
     if config.activation != "relu":
         raise ValueError("this comparison maps ReLU networks only (the evaluation reads the actor as ReLU layers)")
     if library == "sb3":
@@ -345,7 +348,8 @@ def main() -> int:
     from wrl_jax.agents.networks import measured_matmul_peak_gflops
     from wrl_jax.agents.off_policy_config import SAC_DEFAULT
 
-    config = SAC_DEFAULT
+    # The libraries evaluate the actor as trained; ours does the same here (the average changes no training step).
+    config = dataclasses.replace(SAC_DEFAULT, actor_average=0.0)
     if args.total_timesteps is not None:
         config = dataclasses.replace(config, total_timesteps=args.total_timesteps)
     seeds = list(range(args.seeds))

@@ -253,6 +253,11 @@ def test_the_continuous_collision_penalty_observed_obstacles_and_off_policy_sett
     algo = build(command.spec, command.config, command.env)
     assert algo.env.observe_obstacles and algo.env.obs_size == 11 + 32 + 5 + 32 + 2 + 3  # the route last
     assert cli_options.parse("sac", ["--target-entropy", "-4", "--out", str(tmp_path / "t")]).config.target_entropy == -4.0
+    for env_name in ("Continuous-Warehouse-12x12-v0", "Continuous-Warehouse-12x12-Dynamic-v0"):  # docs' SAC numbers
+        plain = cli_options.parse("sac", ["--env", env_name, "--out", str(tmp_path / "s")]).config
+        assert (plain.target_entropy, plain.actor_average) == (-6.0, 0.001)
+    unaveraged = cli_options.parse("sac", ["--actor-average", "0", "--out", str(tmp_path / "u")]).config
+    assert unaveraged.actor_average == 0.0
     annealed = cli_options.parse("td3", ["--anneal-lr", "--anneal-from", "0.5", "--out", str(tmp_path / "a")]).config
     assert (annealed.anneal_lr, annealed.anneal_from) == (True, 0.5)
     with pytest.raises(ValueError, match="--observe-obstacles: continuous options"):

@@ -106,7 +106,9 @@ def test_stable_baselines3_sac_trains_on_it(tmp_path, monkeypatch):
     # ... and its SB3 model has our SAC's settings.
     from wrl_jax.agents.off_policy_config import SAC_DEFAULT
 
-    config = SAC_DEFAULT.replace(buffer_size=1000, target_entropy=-3.0)
+    with pytest.raises(ValueError, match="actor as trained"):  # SB3 has no average of its actor to evaluate
+        library_kwargs(SAC_DEFAULT, "sb3")
+    config = SAC_DEFAULT.replace(buffer_size=1000, target_entropy=-3.0, actor_average=0.0)
     mapped = sb3.SAC("MlpPolicy", env, seed=0, **library_kwargs(config, "sb3"))
     assert (mapped.learning_starts, mapped.batch_size, mapped.gradient_steps, mapped.train_freq.frequency,
             mapped.buffer_size, mapped.gamma, mapped.tau) == (5000, 256, 2, 1, 1000, 0.99, 0.005)
