@@ -24,7 +24,7 @@ target and the route seen, geodesic shaping), seeds ``0..N-1``, in one run:
 The settings map one to one (``library_kwargs``; tested for SB3): 16 environments, ``train_freq`` 1
 vector step, 2 gradient steps per vector step, batch 256, buffer 200k, 5,000 random steps first, two
 hidden layers of 128 (ReLU), learning rate 1e-3 for the actor, the critics and the temperature, Adam's
-epsilon, gamma 0.99, tau 0.005, the temperature learned from 0.1 towards the target entropy (-6),
+epsilon, gamma 0.99, tau 0.005, the temperature learned from 0.1 towards the target entropy (-6, or ``--target-entropy``),
 time-limit cut-offs bootstrapped, the actor as trained evaluated (our default evaluates an average of it, which
 changes no training step; here every side evaluates the actor). Our ``reward_scale`` 0.1 is a ``TransformReward`` on the libraries'
 side. What differs: the initial weights (ours orthogonal, the actor's last layer scaled by 0.01; SB3
@@ -328,6 +328,8 @@ def main() -> int:
     parser.add_argument("--total-timesteps", type=int, default=None,
                         help="the most env steps per seed (default: the preset's, 400k)")
     parser.add_argument("--target", type=float, default=0.99, help="delivered fraction a seed stops at")
+    parser.add_argument("--target-entropy", type=float, default=None,
+                        help="SAC's target entropy on every side (default: SAC_DEFAULT's, -6; -2 is the paper's -|A|)")
     parser.add_argument("--eval-every-steps", type=int, default=8000, help="env steps per seed between evaluations")
     parser.add_argument("--libraries", nargs="*", default=["sb3"], choices=sorted(LIBRARIES),
                         help="the other side(s): sb3 (the test extras have it), sbx (its own venv, see the docstring)")
@@ -350,6 +352,8 @@ def main() -> int:
 
     # The libraries evaluate the actor as trained; ours does the same here (the average changes no training step).
     config = dataclasses.replace(SAC_DEFAULT, actor_average=0.0)
+    if args.target_entropy is not None:
+        config = dataclasses.replace(config, target_entropy=args.target_entropy)
     if args.total_timesteps is not None:
         config = dataclasses.replace(config, total_timesteps=args.total_timesteps)
     seeds = list(range(args.seeds))
