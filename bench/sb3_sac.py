@@ -24,10 +24,10 @@ target and the route seen, geodesic shaping), seeds ``0..N-1``, in one run:
 The settings map one to one (``library_kwargs``; tested for SB3): 16 environments, ``train_freq`` 1
 vector step, 2 gradient steps per vector step, batch 256, buffer 200k, 5,000 random steps first, two
 hidden layers of 128 (ReLU), learning rate 1e-3 for the actor, the critics and the temperature, Adam's
-epsilon, gamma 0.99, tau 0.005, the temperature learned from 0.1 towards the target entropy (-6, or ``--target-entropy``),
-time-limit cut-offs bootstrapped, the actor as trained evaluated (our default evaluates an average of it, which
-changes no training step; here every side evaluates the actor). Our ``reward_scale`` 0.1 is a ``TransformReward`` on the libraries'
-side. What differs: the initial weights (ours orthogonal, the actor's last layer scaled by 0.01; SB3
+epsilon, gamma 0.99, tau 0.005, the temperature learned from 0.1 towards the target entropy (-6, or
+``--target-entropy``), time-limit cut-offs bootstrapped, the actor as trained evaluated (our default evaluates an
+average of it, which changes no training step; here every side evaluates the actor). Our ``reward_scale`` 0.1 is
+a ``TransformReward`` on the libraries' side. What differs: the initial weights (ours orthogonal, the actor's last layer scaled by 0.01; SB3
 PyTorch's uniform default, sbx flax's default), and the order of the temperature step (SB3 before the
 critics, with the old value used in that gradient step as ours does; sbx and ours after the actor).
 

@@ -173,8 +173,9 @@ class SACConfig(OffPolicyConfig):
         learn_alpha: learn the temperature towards the target entropy (otherwise it stays ``initial_alpha``).
         target_entropy: the entropy of the environment's actions the temperature steers towards
             (``None``: ``-|A|``, the SAC paper's; the warehouse's presets set -6).
-        actor_average: 0 evaluates the actor as trained; above 0 (0.001 in the warehouse's presets), a Polyak average of the actor
-            (this rate per gradient step) is kept beside it and is the policy evaluated and saved as greedy.
+        actor_average: 0 evaluates the actor as trained; above 0 (0.001 in the warehouse's presets), a Polyak
+            average of the actor (this rate per gradient step) is kept beside it and is the policy evaluated and
+            saved as greedy.
             The average only reads the actor: training is unchanged (up to float rounding).
 
     Traced:
