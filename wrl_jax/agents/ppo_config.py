@@ -301,9 +301,9 @@ RWARE = dataclasses.replace(
 agent's observation); docs/rware.md has what each reaches. One-hot cells and small, frequent updates: with
 rware's raw coordinates, or 4x larger updates at half the step size, 4M steps gave about half the return or none.
 Raw advantages: before the first delivery every reward is 0, and standardizing the critic's noise steered some
-seeds' teams into standing still for good. Entropy 0.003: at 0.001 the policies' entropy ends lower (0.025-0.08 against 0.04-0.2), and IPPO's
-returns are lower on every task, with more seeds in which an agent delivers nothing in some episode
-(bench/results/rware/NOTES.md)."""
+seeds' teams into standing still for good. Entropy 0.003: at 0.001 the policies' entropy ends lower (0.025-0.08
+against 0.04-0.2), and IPPO's returns are lower on every task, with more seeds in which an agent delivers nothing
+in some episode (bench/results/rware/NOTES.md)."""
 
 CONTINUOUS_DYNAMIC = dataclasses.replace(CONTINUOUS, total_timesteps=3_000_000)
 """The ``continuous`` preset for the moving obstacles' map, with the 3M steps its measurements used
