@@ -1,8 +1,9 @@
 """Our SAC against Stable-Baselines3's SAC and sbx's: wall time to 99 % delivery, same hyperparameters.
 
 Every side trains SAC with the hyperparameters of ``wrl_jax.agents.off_policy_config.SAC_DEFAULT``
-(what ``python train_sac.py`` runs) on the same view of the continuous warehouse (SAC's default: the
-target and the route seen, geodesic shaping), seeds ``0..N-1``, in one run:
+(what ``python train_sac.py`` runs) on the same view of the continuous warehouse (the target and the route
+seen, geodesic shaping: SAC's default on the static maps less its safety stop, which would act inside the
+environment on every side alike; the comparison was measured without it), seeds ``0..N-1``, in one run:
 
 - **ours**: the whole loop compiled (``wrl_jax.training``), every seed ``vmap``ped in one program;
   compile time reported apart and counted in the wall.
@@ -66,10 +67,11 @@ from bench.sb3_dqn import load_average, write_results  # noqa: E402
 
 
 def env_view(env_name: str) -> dict[str, Any]:
-    """SAC's default overrides for ``env_name`` (what ``python train_sac.py --env ENV`` trains on)."""
-    from wrl_jax.agents.off_policy_config import OFF_POLICY_ENV_DEFAULTS
+    """SAC's default overrides for ``env_name`` (``python train_sac.py --env ENV``), less the safety stop and the
+    held value on the static maps: the route alone there, the view the committed comparison measured."""
+    from wrl_jax.agents.off_policy_config import ROUTE_ENV_DEFAULTS, ROUTE_NAMES, SAC_ENV_DEFAULTS
 
-    return dict(OFF_POLICY_ENV_DEFAULTS.get(env_name, {}))
+    return dict(ROUTE_ENV_DEFAULTS if env_name in ROUTE_NAMES else SAC_ENV_DEFAULTS.get(env_name, {}))
 
 
 def flops_per_env_step(config, env_name: str) -> float:

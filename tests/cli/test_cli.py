@@ -248,7 +248,7 @@ def test_the_continuous_collision_penalty_observed_obstacles_and_off_policy_sett
     algo = build(command.spec, command.config, command.env)
     assert float(algo.env_params.collision_penalty) == -50.0
     assert not algo.env.observe_obstacles and algo.env.obs_size == 11 + 32 + 5 + 3  # the route kept
-    command = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--observe-obstacles", "True",
+    command = cli_options.parse("td3", ["--env", "Continuous-Warehouse-8x8-v0", "--observe-obstacles", "True",
                                         "--out", str(tmp_path / "o")])
     algo = build(command.spec, command.config, command.env)
     assert algo.env.observe_obstacles and algo.env.obs_size == 11 + 32 + 5 + 32 + 2 + 3  # the route last
@@ -285,16 +285,23 @@ def test_the_safety_stop_is_a_flag_of_the_continuous_warehouse_and_refused_with_
 
 def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obstacles_where_they_move(tmp_path):
     """SAC's and TD3's commands add geodesic shaping and ``observe_route`` on the study's maps (the procedural
-    variant has no distance fields); PPO keeps the target alone there; on the moving obstacles' map every learner
-    also sees the obstacles, and PPO trains for the 3M steps measured there (SAC and TD3 for 800k); the flags turn it off, and a route
-    without the fields is refused by name when the environment is built, before anything compiles."""
+    variant has no distance fields), SAC's also the safety stop with its held value in view; PPO keeps the target
+    alone there; on the moving obstacles' map every learner also sees the obstacles, and PPO trains for the 3M steps
+    measured there (SAC and TD3 for 800k); the flags turn it off, and a route without the fields is refused by name
+    when the environment is built, before anything compiles."""
     dynamic = "Continuous-Warehouse-12x12-Dynamic-v0"
     for algo in ("sac", "td3"):
         for name in ("Continuous-Warehouse-8x8-v0", "Continuous-Warehouse-12x12-v0"):
             overrides = cli_options.parse(algo, ["--env", name, "--out", str(tmp_path / algo)]).env.overrides()
             assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"]) == (
                 "geodesic", True, True), (algo, name)
-            assert "observe_obstacles" not in overrides and "safety_stop" not in overrides
+            if algo == "sac":  # and the safety stop, with how long it has held the robot in view
+                assert (overrides["observe_obstacles"], overrides["safety_stop"]) == (True, True), name
+                command = cli_options.parse(algo, ["--env", name, "--out", str(tmp_path / algo)])
+                env = build(command.spec, command.config, command.env).env
+                assert env.safety_margin == 0.05 and env.observe_held, name
+            else:
+                assert "observe_obstacles" not in overrides and "safety_stop" not in overrides
         overrides = cli_options.parse(algo, ["--env", "Continuous-Procedural-Warehouse-v0", "--out",
                                              str(tmp_path / algo)]).env.overrides()
         assert "observe_route" not in overrides and "shaping" not in overrides and overrides["observe_target"]
@@ -313,7 +320,7 @@ def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obsta
     assert build(alone.spec, alone.config, alone.env).env.obs_size == 11 + 32 + 5  # the docs' target-alone rows
     assert "observe_route" not in cli_options.parse("ppo", ["--env", "Continuous-Warehouse-12x12-v0", "--out",
                                                             str(tmp_path / "ppo")]).env.overrides()
-    command = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--observe-route", "False",
+    command = cli_options.parse("td3", ["--env", "Continuous-Warehouse-8x8-v0", "--observe-route", "False",
                                         "--out", str(tmp_path / "off")])
     algo = build(command.spec, command.config, command.env)
     assert algo.env.obs_size == 11 + 32 + 5 and not algo.env.observe_route  # geodesic shaping kept, no route
@@ -353,6 +360,10 @@ def test_randomize_flag_builds_the_randomized_warehouse(tmp_path):
     """``--randomize True`` (domain randomization) reaches the continuous warehouse's params; other families refuse it."""
     command = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--randomize", "True",
                                         "--out", str(tmp_path / "a")])
+    with pytest.raises(ValueError, match="turn it off with --safety-stop False"):  # SAC's default stop
+        cli_options.build(command.spec, command.config, command.env)
+    command = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--randomize", "True",
+                                        "--safety-stop", "False", "--out", str(tmp_path / "a")])
     algo = cli_options.build(command.spec, command.config, command.env)
     assert bool(algo.env_params.randomize) and algo.env.observe_target
     plain = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--out", str(tmp_path / "b")])

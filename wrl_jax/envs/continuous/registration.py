@@ -148,9 +148,9 @@ def stop_margin(safety_stop: bool, margin: Any, randomize: bool, num_rays: int) 
             raise ValueError("safety_margin is the safety stop's: pass safety_stop=True with it (--safety-stop True)")
         return None
     if randomize:
-        raise ValueError("the safety stop (every learner's default on the moving obstacles' map) checks the nominal "
-                         "command, which randomized gains and noise would make unsafe: turn it off with "
-                         "--safety-stop False (safety_stop=False) to randomize, or leave randomize off")
+        raise ValueError("the safety stop (every learner's default with moving obstacles, SAC's on the static maps) "
+                         "checks the nominal command, which randomized gains and noise would make unsafe: turn it "
+                         "off with --safety-stop False (safety_stop=False) to randomize, or leave randomize off")
     if margin is None and num_rays < 32:
         raise ValueError(f"the safety stop's default margin ({SAFETY_MARGIN} m) covers the gaps between 32 rays or "
                          f"more; with num_rays={num_rays} pass a safety_margin of your own")
