@@ -5,7 +5,7 @@ are measured in) and, with ``--baseline``, times an older copy of the env beside
 ``--trace`` lists the compiled program's fusions by share of traced time (``bench/xla_trace.py``);
 ``pibt_profile.py --baseline`` times an older planners.py and refuses one that plans other moves;
 ``observation_floor.py`` sums exactly the observation-sized arrays it writes; ``continuous_randomization.py``
-widens the randomization ranges as it says.
+widens the randomization ranges as it says; ``periodic_evaluations.py`` counts what the runs' metrics say.
 """
 
 from __future__ import annotations
@@ -113,3 +113,29 @@ def test_rware_learning_passes_the_tie_order_only_when_asked():
     ippo = command_of("rware-tiny-4ag-v2", "IPPO", Path("/tmp/x"), 4, 2, False, "insertion")
     assert ippo[ippo.index("--tie-order") + 1] == "insertion" and "local" in ippo
     assert "--tie-order" not in command_of("rware-tiny-4ag-v2", "MAPPO", Path("/tmp/x"), 4, 2, False)
+
+
+def test_periodic_evaluations_merge_runs_count_solved_seeds_and_refuse_mixed_views(tmp_path):
+    """``bench/investigations/periodic_evaluations.py`` (the NOTES' solved-per-evaluation tables): runs of one
+    variant merge by seed, evaluations before ``from_steps`` and training-only rows are left out, and runs with
+    different environment overrides are refused."""
+    sys.path.insert(0, str(ROOT / "bench" / "investigations"))
+    from periodic_evaluations import summarize
+
+    header = "env_steps,seed,eval_solved,eval_success_rate,eval_mean_steps\n"
+
+    def run(name: str, rows: str, overrides: dict) -> Path:
+        path = tmp_path / name
+        path.mkdir()
+        (path / "metrics.csv").write_text(header + rows)
+        (path / "config.json").write_text(json.dumps({"env_overrides": overrides}))
+        return path
+
+    first = run("a", "8,0,,,\n8,0,1.0,1.0,9.0\n16,0,0.0,0.95,9.5\n16,1,1.0,1.0,9.25\n", {"safety_stop": True})
+    second = run("b", "8,2,1.0,1.0,8.0\n16,2,1.0,1.0,8.5\n", {"safety_stop": True})
+    summary = summarize([first, second], from_steps=16)
+    assert summary["solved"] == {"16": 2} and (summary["late_solved"], summary["late_evaluations"]) == (2, 3)
+    assert summary["per_evaluation"]["16"]["0"] == {"solved": False, "delivered": 0.95, "steps_per_item": 9.5}
+    assert summarize([first, second], from_steps=0)["solved"] == {"8": 2, "16": 2}
+    with pytest.raises(SystemExit, match="share their environment overrides"):
+        summarize([first, run("c", "16,3,1.0,1.0,9.0\n", {})], from_steps=0)

@@ -292,12 +292,12 @@ def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obsta
     dynamic = "Continuous-Warehouse-12x12-Dynamic-v0"
     for algo in ("sac", "td3"):
         for name in ("Continuous-Warehouse-8x8-v0", "Continuous-Warehouse-12x12-v0"):
-            overrides = cli_options.parse(algo, ["--env", name, "--out", str(tmp_path / algo)]).env.overrides()
+            command = cli_options.parse(algo, ["--env", name, "--out", str(tmp_path / algo)])
+            overrides = command.env.overrides()
             assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"]) == (
                 "geodesic", True, True), (algo, name)
             if algo == "sac":  # and the safety stop, with how long it has held the robot in view
                 assert (overrides["observe_obstacles"], overrides["safety_stop"]) == (True, True), name
-                command = cli_options.parse(algo, ["--env", name, "--out", str(tmp_path / algo)])
                 env = build(command.spec, command.config, command.env).env
                 assert env.safety_margin == 0.05 and env.observe_held, name
             else:
