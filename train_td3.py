@@ -10,7 +10,8 @@ import sys
 if __name__ == "__main__":
     from wrl_jax.cli import machine  # imports no JAX
 
-    machine.apply_for_command(sys.argv[1:])  # XLA's flags and distributed JAX, before JAX starts
+    # XLA's flags, host devices (one per core that divides the seeds) and distributed JAX, before JAX starts
+    argv = machine.apply_for_command(sys.argv[1:], choose_devices=True, algo="td3")
     from wrl_jax.cli.train import main
 
-    sys.exit(main("td3"))
+    sys.exit(main("td3", argv))

@@ -134,6 +134,8 @@ class RunOptions:
     """updates aggregated per metrics row"""
     checkpoint_every: int = 1
     """chunks between checkpoints"""
+    checkpoint_seconds: float = 120.0
+    """at least this many seconds between two checkpoints before the last (0: every --checkpoint-every chunks)"""
     progress: bool = True
     """show a progress bar"""
     plot: bool = True

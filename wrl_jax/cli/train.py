@@ -47,6 +47,7 @@ def train(command: Command) -> dict[str, Any]:
         eval_every=run.eval_every,
         log_every=run.log_every,
         checkpoint_every=run.checkpoint_every,
+        checkpoint_seconds=run.checkpoint_seconds,
         progress=run.progress,
     )
     if os.environ.get(CHOSEN_DEVICES_VARIABLE) == str(run.devices) and jax.default_backend() != "cpu":

@@ -345,7 +345,7 @@ def run(
             },
         )
 
-    chunks_since_save = 0
+    chunks_since_save, last_save = 0, time.perf_counter()
     updates_done = start
     try:
         while updates_done < stop:
@@ -363,9 +363,10 @@ def run(
             if writer is not None:
                 writer.append(rows)
             chunks_since_save += 1
-            if chunks_since_save >= loop.checkpoint_every or updates_done >= stop:
+            due = chunks_since_save >= loop.checkpoint_every and time.perf_counter() - last_save >= loop.checkpoint_seconds
+            if due or updates_done >= stop:
                 save(updates_done)
-                chunks_since_save = 0
+                chunks_since_save, last_save = 0, time.perf_counter()
             if bar is not None:
                 bar.update(ran * trainer.steps_per_update)
                 steps_per_second = ran * trainer.steps_per_update * len(trainer.seeds) / max(elapsed, 1e-9)
