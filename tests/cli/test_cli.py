@@ -370,3 +370,20 @@ def test_randomize_flag_builds_the_randomized_warehouse(tmp_path):
     assert "randomize" not in plain.env.overrides()
     with pytest.raises(ValueError, match="--randomize: continuous options"):
         cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--randomize", "True", "--out", str(tmp_path / "c")])
+
+
+def test_sac_and_td3_split_the_cpu_on_every_environment_unless_told():
+    """``train_sac.py`` and ``train_td3.py`` add ``--devices N`` on any environment (their updates leave a core
+    idle on one device); PPO only on the procedural warehouse; a flag, a seed count that does not divide, or one
+    core decides otherwise."""
+    from wrl_jax.cli.machine import auto_devices
+
+    quiet = {}
+    for algo in ("sac", "td3"):
+        assert auto_devices([], 2, quiet, algo=algo) == ["--devices", "2"]
+        assert auto_devices(["--env", "Continuous-Warehouse-8x8-v0"], 2, quiet, algo=algo) == ["--devices", "2"]
+        assert auto_devices(["--num-seeds", "3"], 2, quiet, algo=algo) == []
+        assert auto_devices([], 1, quiet, algo=algo) == []
+        assert auto_devices(["--devices", "1"], 2, quiet, algo=algo) == []
+    assert auto_devices(["--env", "Continuous-Warehouse-12x12-v0"], 2, quiet, algo="ppo") == []
+    assert auto_devices([], 2, quiet, algo="dqn") == []

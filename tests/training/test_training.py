@@ -9,6 +9,9 @@ the two modules compile these chunk programs and the evaluation once between the
 
 from __future__ import annotations
 
+import copy
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -109,6 +112,26 @@ def test_exact_resume_from_a_chunk_boundary(chunked, reference, tmp_path):
     # A resume with another configuration is refused before anything runs.
     with pytest.raises(checkpoint.CheckpointMismatchError, match="config.note"):
         training.run(trainer, tmp_path, metadata={**meta, "config": {"note": "other"}}, resume=True)
+
+
+def test_checkpoints_wait_checkpoint_seconds_but_the_last_is_always_written(chunked, tmp_path, monkeypatch):
+    """Four chunks: with ``checkpoint_seconds=0`` a checkpoint after each, with an hour only the last one (a
+    ``stop_after`` run's too)."""
+    saved = []
+    real_save = checkpoint.save
+    monkeypatch.setattr(checkpoint, "save", lambda path, tree, meta: saved.append(meta["updates_done"])
+                        or real_save(path, tree, meta))
+    trainer = copy.copy(chunked)  # the same compiled chunks, another host cadence
+    for seconds, expected in ((0.0, [2, 4, 6, 7]), (3600.0, [7])):
+        saved.clear()
+        trainer.loop = dataclasses.replace(chunked.loop, checkpoint_seconds=seconds)
+        training.run(trainer, tmp_path / str(seconds), metadata={"algo": "ppo"})
+        assert saved == expected
+    saved.clear()
+    training.run(trainer, tmp_path / "stopped", metadata={"algo": "ppo"}, stop_after=3)
+    assert saved == [4]
+    with pytest.raises(ValueError, match="checkpoint_seconds"):
+        training.LoopConfig(checkpoint_seconds=-1).resolve(10)
 
 
 def test_seeds_differ_and_runs_repeat_bit_for_bit(algo, reference):
