@@ -5,8 +5,9 @@ Every side trains SAC with the hyperparameters of ``wrl_jax.agents.off_policy_co
 seen, geodesic shaping: SAC's default on the static maps less its safety stop, which would act inside the
 environment on every side alike; the comparison was measured without it), seeds ``0..N-1``, in one run:
 
-- **ours**: the whole loop compiled (``wrl_jax.training``), every seed ``vmap``ped in one program;
-  compile time reported apart and counted in the wall.
+- **ours**: the whole loop compiled (``wrl_jax.training``), the seeds ``vmap``ped, split over host devices as
+  ``train_sac.py`` splits them (``--devices``, default one per core that divides the seeds: 2 here, both
+  cores); compile time reported apart and counted in the wall.
 - **SB3**: ``stable_baselines3.SAC`` (PyTorch, CPU) on the Gymnasium adapter
   (``wrl_jax.wrappers.gymnasium_continuous.ContinuousGymEnv``), a ``DummyVecEnv`` of ``num_envs``
   copies per seed; the seeds split over ``--library-processes`` processes (default 2, one PyTorch thread
@@ -85,7 +86,8 @@ def flops_per_env_step(config, env_name: str) -> float:
 
 
 # ------------------------------------------------------------------- ours
-def run_ours(config, env_name: str, seeds: list[int], eval_every_updates: int, target: float) -> dict[str, Any]:
+def run_ours(config, env_name: str, seeds: list[int], eval_every_updates: int, target: float,
+             devices: int = 1) -> dict[str, Any]:
     import jax
 
     import wrl_jax
@@ -95,7 +97,12 @@ def run_ours(config, env_name: str, seeds: list[int], eval_every_updates: int, t
     env, params = wrl_jax.make(env_name, **env_view(env_name))
     algo = SAC(config, env, params)
     loop = training.LoopConfig(eval_every=eval_every_updates, chunk_updates=eval_every_updates, progress=False)
-    trainer = training.Trainer(algo, seeds, loop)
+    if devices > 1:
+        from wrl_jax.training import sharding
+
+        trainer = sharding.ShardedTrainer(algo, seeds, loop, sharding.make_mesh(devices, 1))
+    else:
+        trainer = training.Trainer(algo, seeds, loop)
     t0 = time.perf_counter()
     runners = trainer.init()
     latest = trainer.empty_eval(runners)
@@ -340,13 +347,22 @@ def main() -> int:
                         help="processes SB3's seeds are split over (default 2: both cores; sbx uses one, XLA threads)")
     parser.add_argument("--torch-threads", type=int, default=1,
                         help="PyTorch intra-op threads per process for SB3 (0 keeps PyTorch's default)")
+    parser.add_argument("--devices", type=int, default=None,
+                        help="host devices our seeds are split over (default: train_sac.py's, one per core that "
+                             "divides the seeds; 1: one program on one device)")
     parser.add_argument("--out", default=None,
                         help="JSON path (default bench/results/continuous/<libraries>_sac_<env>.json)")
     args = parser.parse_args()
 
-    from wrl_jax.cli.machine import DEFAULT_XLA_OPT_LEVEL, apply_xla_opt_level
+    from wrl_jax.cli.machine import (DEFAULT_XLA_OPT_LEVEL, apply_xla_opt_level, auto_devices,
+                                     xla_flags_with_host_devices)
 
-    apply_xla_opt_level(DEFAULT_XLA_OPT_LEVEL)  # as train_sac.py does
+    apply_xla_opt_level(DEFAULT_XLA_OPT_LEVEL)  # as train_sac.py does, and its split of the CPU
+    devices = args.devices
+    if devices is None:
+        chosen = auto_devices(["--num-seeds", str(args.seeds)], os.cpu_count(), {}, algo="sac")
+        devices = int(chosen[1]) if chosen else 1
+    os.environ["XLA_FLAGS"] = xla_flags_with_host_devices(os.environ.get("XLA_FLAGS", ""), devices)
     import jax
 
     from wrl_jax.agents.networks import measured_matmul_peak_gflops
@@ -376,8 +392,9 @@ def main() -> int:
         "command": "python bench/sb3_sac.py " + " ".join(sys.argv[1:]),
     }
     if not args.skip_ours:
-        print(f"ours: {len(seeds)} seeds vmapped, up to {config.total_timesteps:,} steps each", flush=True)
-        record["ours"] = run_ours(config, args.env, seeds, eval_updates, args.target)
+        print(f"ours: {len(seeds)} seeds vmapped over {devices} device(s), up to {config.total_timesteps:,} steps "
+              f"each", flush=True)
+        record["ours"] = {**run_ours(config, args.env, seeds, eval_updates, args.target, devices), "devices": devices}
         record["machine"]["load_after_ours"] = load_average()
     for library in args.libraries:
         import stable_baselines3
