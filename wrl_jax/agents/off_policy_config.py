@@ -238,13 +238,14 @@ SAC_DEFAULT = SACConfig(
     num_envs=16, train_freq=1, gradient_steps=2, batch_size=256, hidden_sizes=(128, 128), buffer_size=200_000,
     learning_starts=5_000, learning_rate=1e-3, gamma=0.99, tau=0.005,
     reward_scale=0.1,  # the warehouse's rewards reach 200: Q-values of tens, not thousands
-    initial_alpha=0.1, total_timesteps=400_000,  # 12x12 over the stop, 4 seeds: 12-14 min with compile
+    initial_alpha=0.1, total_timesteps=400_000,  # 12x12 over the stop, 4 seeds on 2 cores: 7-7.5 min with compile
     target_entropy=-6.0,  # -3|A| (the paper: -|A|): the greedy command saturates (96.5 steps per item, not 99)
     actor_average=0.001,  # the greedy policy is a Polyak average of the actor: one grazing step flips a snapshot
 )
 """Ours for the continuous warehouse: on 12x12 with :data:`SAC_ENV_DEFAULTS` (the route, the safety stop), seeds 0-31,
-every item without a contact on 32 of 32 seeds (the route alone: 29; the paper's target entropy without the average,
-the route alone: 16 of 24); bench/results/continuous/NOTES.md."""
+``train_sac.py``'s split over 2 cores: every item without a contact on 31 of 32 seeds (on one device 32; the route
+alone: 29; the paper's target entropy without the average, the route alone: 16 of 24);
+bench/results/continuous/NOTES.md."""
 
 TD3_DEFAULT = TD3Config(
     num_envs=16, train_freq=1, gradient_steps=2, batch_size=256, hidden_sizes=(128, 128), buffer_size=200_000,
@@ -281,8 +282,8 @@ TD3_ENV_DEFAULTS = {name: ROUTE_ENV_DEFAULTS if name in ROUTE_NAMES else
                     for name in CONTINUOUS_NAMES}
 """TD3's environment defaults per id: the route on the study's static maps (measured there without the stop)."""
 SAC_ENV_DEFAULTS = {**TD3_ENV_DEFAULTS, **{name: GUARDED_ENV_DEFAULTS for name in ROUTE_NAMES}}
-"""SAC's environment defaults per id: the safety stop and the held value on the static maps too (12x12, seeds 0-31:
-32 of 32 solved, against 29 with the route alone and 30 with the stop but not the value in view; the value
+"""SAC's environment defaults per id: the safety stop and the held value on the static maps too (12x12, seeds 0-31,
+one device: 32 of 32 solved, against 29 with the route alone and 30 with the stop but not the value in view; the value
 lets a policy without memory back out of a standstill the stop holds; bench/results/continuous/NOTES.md)."""
 
 SAC_DYNAMIC = dataclasses.replace(SAC_DEFAULT, total_timesteps=800_000)
