@@ -116,9 +116,8 @@ def auto_devices(argv: list[str], cpu_count: int | None, environ: dict[str, str]
     On :data:`AUTO_DEVICES_ENVS`, and on every environment for an ``algo`` of :data:`AUTO_DEVICES_ALGOS`:
     ``--devices N``, the most devices, at most the CPU's cores, that divide the seeds evenly. ``--resume``: the
     ``--devices`` and ``--env-shards`` the run recorded in its ``config.json`` (a resume on the same devices is
-    exact). Nothing where the user chose (``--devices``,
-    ``--env-shards``, ``--distributed`` or ``WRL_DISTRIBUTED``, a host device count in ``XLA_FLAGS``), on
-    other environments, or on one core.
+    exact). Nothing where the user chose (``--devices``, ``--env-shards``, ``--distributed`` or
+    ``WRL_DISTRIBUTED``, a host device count in ``XLA_FLAGS``), on other environments, or on one core.
     """
     environ = os.environ if environ is None else environ
     argv = [_flag(arg) for arg in argv]
