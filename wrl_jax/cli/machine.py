@@ -106,7 +106,7 @@ AUTO_DEVICES_ALGOS = ("sac", "td3")
 """Commands that split the CPU into host devices on every environment when ``--devices`` is not given.
 
 SAC's and TD3's updates (small networks, batch 256, a gradient step at a time) leave the second core idle on one
-device; split, SAC's default trained 1.6-1.9x faster on 2 cores (docs/continuous.md)."""
+device; split, SAC's default trained 1.5-1.9x faster on 2 cores (docs/continuous.md)."""
 
 
 def auto_devices(argv: list[str], cpu_count: int | None, environ: dict[str, str] | None = None,
