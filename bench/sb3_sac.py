@@ -358,9 +358,9 @@ def main() -> int:
                                      xla_flags_with_host_devices)
 
     apply_xla_opt_level(DEFAULT_XLA_OPT_LEVEL)  # as train_sac.py does, and its split of the CPU
-    devices = args.devices
+    devices = 1 if args.skip_ours else args.devices  # --skip-ours: the libraries alone, on the CPU as it is
     if devices is None:
-        chosen = auto_devices(["--num-seeds", str(args.seeds)], os.cpu_count(), {}, algo="sac")
+        chosen = auto_devices(["--num-seeds", str(args.seeds)], os.cpu_count(), algo="sac")
         devices = int(chosen[1]) if chosen else 1
     os.environ["XLA_FLAGS"] = xla_flags_with_host_devices(os.environ.get("XLA_FLAGS", ""), devices)
     import jax
