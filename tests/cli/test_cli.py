@@ -155,6 +155,7 @@ def test_the_training_scripts_run_their_command():
     assert set(printed) == {"train_ppo.py", "train_dqn.py", "train_sac.py", "train_td3.py"}
     for script, (code, text) in printed.items():
         assert code == 0, script
+        assert "host devices" not in text, script  # --help chooses no devices
         for flag in ("--env", "--preset", "--num-seeds", "--total-timesteps", "--learning-rate", "--out", "--resume"):
             assert flag in text, (script, flag)
     assert "--critic" in printed["train_ppo.py"][1] and "--buffer-size" in printed["train_dqn.py"][1]

@@ -167,7 +167,8 @@ def apply_for_command(argv: list[str], choose_devices: bool = False, algo: str =
     """
     from wrl_jax import _distributed
 
-    if choose_devices and (flags := auto_devices(argv, os.cpu_count(), algo=algo)):
+    asks_help = any(arg in ("-h", "--help") for arg in argv)
+    if choose_devices and not asks_help and (flags := auto_devices(argv, os.cpu_count(), algo=algo)):
         argv = [*argv, *flags]
         if "--resume" not in argv:
             count = flags[1]
