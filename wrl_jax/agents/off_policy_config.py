@@ -275,8 +275,8 @@ stop under the policy with how long it has held the robot: every learner's defau
 (:data:`DYNAMIC_ENV_DEFAULTS`) and SAC's on the study's static maps (:data:`SAC_ENV_DEFAULTS`)."""
 DYNAMIC_ENV_DEFAULTS = dict(GUARDED_ENV_DEFAULTS)
 """Every learner's defaults on the moving obstacles' map (PPO, 3M steps: 99.1 % delivered and no contact, against
-99.4 % with 5.2 contact steps per episode without the stop; SAC, 800k: 99.5 % and none (its previous default: 98.8 %
-and none, against 98.9 % and 6.9 without the stop); TD3, 800k: 99.2 % and none; docs/continuous.md)."""
+99.4 % with 5.2 contact steps per episode without the stop; SAC, 800k, split over 2 cores: 99.7 % and none (one device 99.5 %; its previous default: 98.8 %
+and none, against 98.9 % and 6.9 without the stop); TD3, 800k, one device: 99.2 % and none; docs/continuous.md)."""
 TD3_ENV_DEFAULTS = {name: ROUTE_ENV_DEFAULTS if name in ROUTE_NAMES else
                     DYNAMIC_ENV_DEFAULTS if name == DYNAMIC_NAME else CONTINUOUS_ENV_DEFAULTS
                     for name in CONTINUOUS_NAMES}
@@ -287,8 +287,9 @@ one device: 32 of 32 solved, against 29 with the route alone and 30 with the sto
 lets a policy without memory back out of a standstill the stop holds; bench/results/continuous/NOTES.md)."""
 
 SAC_DYNAMIC = dataclasses.replace(SAC_DEFAULT, total_timesteps=800_000)
-"""SAC's default on the moving obstacles' map: twice the static maps' steps (4 seeds: 99.5 % delivered and no
-contact, every seed at 98 % or more, in 27.6 min; bench/results/continuous/NOTES.md has the 400k runs)."""
+"""SAC's default on the moving obstacles' map: twice the static maps' steps (4 seeds, split over 2 cores: 99.7 %
+delivered and no contact, every seed at 98 % or more, in 19.7 min; one device: 99.5 % in 27.6 min;
+bench/results/continuous/NOTES.md)."""
 
 SAC_PRESETS: dict[str, SACConfig] = {"default": SAC_DEFAULT, "sb3": SB3_SAC, "dynamic": SAC_DYNAMIC}
 TD3_DYNAMIC = dataclasses.replace(TD3_DEFAULT, total_timesteps=800_000)
