@@ -161,6 +161,43 @@ def test_the_training_scripts_run_their_command():
     assert "--critic" in printed["train_ppo.py"][1] and "--buffer-size" in printed["train_dqn.py"][1]
 
 
+SCRIPT_DEVICES = """
+import json, os, runpy, sys
+os.cpu_count = lambda: 2  # as on the 2-core machine the defaults were measured on
+import wrl_jax.cli.train as train
+calls = []
+train.main = lambda algo, argv=None: calls.append((algo, sys.argv[1:] if argv is None else argv)) or 0
+given = {}
+for script, flags in (("train_ppo.py", []), ("train_dqn.py", []), ("train_sac.py", []), ("train_td3.py", []),
+                      ("train_ppo.py", ["--env", "Procedural-Warehouse-v0"])):
+    sys.argv = [script, *flags]
+    os.environ.pop("XLA_FLAGS", None)
+    try:
+        runpy.run_path(script, run_name="__main__")
+    except SystemExit:
+        pass
+    given[" ".join([script, *flags])] = calls.pop()
+print(json.dumps(given))
+"""
+
+
+def test_the_training_scripts_choose_devices_for_their_own_algorithm():
+    """Run as a user runs them, with no flags on 2 cores: ``train_sac.py`` and ``train_td3.py`` hand their command
+    ``--devices 2`` on their default map, ``train_ppo.py`` only on the procedural warehouse, ``train_dqn.py`` never
+    (each script names its algorithm to :func:`~wrl_jax.cli.machine.apply_for_command`)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "WRL_DISTRIBUTED")}
+    done = subprocess.run([sys.executable, "-c", SCRIPT_DEVICES], cwd=REPO, capture_output=True, text=True,
+                          timeout=120, env=env)
+    assert done.returncode == 0, done.stderr
+    given = json.loads(done.stdout.strip().splitlines()[-1])
+    assert given["train_sac.py"] == ["sac", ["--devices", "2"]]
+    assert given["train_td3.py"] == ["td3", ["--devices", "2"]]
+    assert given["train_ppo.py"] == ["ppo", []]
+    assert given["train_dqn.py"] == ["dqn", []]
+    assert given["train_ppo.py --env Procedural-Warehouse-v0"] == [
+        "ppo", ["--env", "Procedural-Warehouse-v0", "--devices", "2"]]
+
+
 @pytest.mark.parametrize("script, argv, expected", [
     ("train_ppo.py", ["--xla-opt-level", "1"],
      ["--xla_backend_optimization_level=1", "--xla_cpu_use_fusion_emitters=false"]),
