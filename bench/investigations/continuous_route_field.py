@@ -11,7 +11,7 @@ from, each timed by that rule on every item of both study maps, with and without
 - ``lookahead``: the rule aims at the point reached by following the field for ``ahead`` metres (as pure
   pursuit aims ahead on its path) instead of along the local slope.
 
-``python bench/investigations/continuous_route_field.py`` (about a minute). Recorded in
+``python bench/investigations/continuous_route_field.py`` (about 3 minutes). Recorded in
 bench/results/continuous/NOTES.md ("A better route field for the rule").
 """
 
@@ -126,11 +126,14 @@ def run(field: str, spare: float, ahead: float, stop: bool) -> str:
 
 def main() -> None:
     spare = geodesic.SPARE
-    for field, spare_, ahead in (("lattice", spare, 0.0), ("exact", spare, 0.0), ("exact", 0.08, 0.0),
-                                 ("exact", 0.06, 0.0), ("lattice", spare, 0.3), ("lattice", spare, 0.5)):
-        for stop in (False, True):
+    both, stop_only = (False, True), (True,)
+    for field, spare_, ahead, stops in (("lattice", spare, 0.0, both), ("exact", spare, 0.0, both),
+                                        ("exact", 0.08, 0.0, both), ("exact", 0.06, 0.0, both),
+                                        ("lattice", spare, 0.3, both), ("lattice", spare, 0.5, both),
+                                        ("exact", spare, 0.3, stop_only), ("exact", 0.12, 0.5, stop_only),
+                                        ("exact", 0.15, 0.5, stop_only), ("exact", 0.15, 0.7, stop_only)):
+        for stop in stops:
             print(run(field, spare_, ahead, stop), flush=True)
-
 
 if __name__ == "__main__":
     main()
