@@ -276,14 +276,14 @@ stop under the policy with how long it has held the robot: every learner's defau
 DYNAMIC_ENV_DEFAULTS = dict(GUARDED_ENV_DEFAULTS)
 """Every learner's defaults on the moving obstacles' map (PPO, 3M steps: 99.1 % delivered and no contact, against
 99.4 % with 5.2 contact steps per episode without the stop; SAC, 800k, split over 2 cores: 99.7 % and none (one device 99.5 %; its previous default: 98.8 %
-and none, against 98.9 % and 6.9 without the stop); TD3, 800k, split: 98.75-99.4 % on three seeds and none, the fourth held
-throughout (one device: 99.2 %); docs/continuous.md)."""
+and none, against 98.9 % and 6.9 without the stop); TD3, 800k, split: 98.75-99.4 % on three seeds and none, 0.6 % on the
+fourth (one device: 99.2 %); docs/continuous.md)."""
 TD3_ENV_DEFAULTS = {name: ROUTE_ENV_DEFAULTS if name in ROUTE_NAMES else
                     DYNAMIC_ENV_DEFAULTS if name == DYNAMIC_NAME else CONTINUOUS_ENV_DEFAULTS
                     for name in CONTINUOUS_NAMES}
 """TD3's environment defaults per id: the route on the study's static maps, without the stop (over it, 800k steps,
 seeds 0-11: 9 of 12 solved and 3 that never deliver, against 4 of 8 solved and 8 of 8 delivering every item
-without it; bench/results/continuous/NOTES.md)."""
+without it at 400k; bench/results/continuous/NOTES.md)."""
 SAC_ENV_DEFAULTS = {**TD3_ENV_DEFAULTS, **{name: GUARDED_ENV_DEFAULTS for name in ROUTE_NAMES}}
 """SAC's environment defaults per id: the safety stop and the held value on the static maps too (12x12, seeds 0-31,
 one device: 32 of 32 solved, against 29 with the route alone and 30 with the stop but not the value in view; the value
@@ -297,6 +297,6 @@ bench/results/continuous/NOTES.md)."""
 SAC_PRESETS: dict[str, SACConfig] = {"default": SAC_DEFAULT, "sb3": SB3_SAC, "dynamic": SAC_DYNAMIC}
 TD3_DYNAMIC = dataclasses.replace(TD3_DEFAULT, total_timesteps=800_000)
 """TD3's default on the moving obstacles' map: twice the static maps' steps (4 seeds, split over 2 cores: no contact,
-98.75-99.4 % delivered on three seeds, the fourth held throughout, in 13 min; one device: 99.2 % in 21 min)."""
+98.75-99.4 % delivered on three seeds, 0.6 % on the fourth, in 13 min; one device: 99.2 % in 21 min)."""
 
 TD3_PRESETS: dict[str, TD3Config] = {"default": TD3_DEFAULT, "dynamic": TD3_DYNAMIC}
