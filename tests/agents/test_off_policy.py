@@ -272,6 +272,33 @@ def test_every_network_takes_the_annealed_step_size(corridor, algo_cls, config_c
     assert float(past["learning_rate"]) == 0.0 and float(first["learning_rate"]) == pytest.approx(3e-4 * (1 - 0.5 / 200))
 
 
+def test_td3_preactivation_penalty_draws_a_saturated_actor_out_of_the_squash(corridor):
+    """An actor deep in its tanh (outputs of 20, where tanh' is 0 in float32) gets no gradient through it: without
+    the penalty 200 actor steps leave its outputs where they were; with ``preactivation_penalty`` they shrink (Adam
+    moves each weight about one step size per step, whatever the gradient's scale). The setting is refused below 0."""
+    env, params = corridor
+    obs = jax.vmap(lambda k: env.reset(k, params)[0])(jax.random.split(jax.random.key(1), 16))
+    before_squash = {}
+    for penalty in (0.0, 0.01):
+        config = TD3Config(num_envs=4, total_timesteps=1_600, learning_starts=0, batch_size=32, hidden_sizes=(16,),
+                           buffer_size=1_600, gradient_steps=2, policy_delay=1, learning_rate=1e-2,
+                           preactivation_penalty=penalty)
+        algo = TD3(config, env, params)
+        runner = algo.init(jax.random.key(0))
+        last = runner.actor["params"]["Dense_1"]
+        saturated = {"params": {**runner.actor["params"], "Dense_1": {"kernel": last["kernel"] * 0.0,
+                                                                      "bias": jnp.full_like(last["bias"], 20.0)}}}
+        runner = runner.replace(actor=saturated)
+        update = fast_compile.jit(algo.update)
+        for index in range(100):
+            runner, _ = update(runner, jnp.int32(index))
+        before_squash[penalty] = float(jnp.abs(algo.actor_forward(runner.actor, obs)).mean())
+    assert before_squash[0.0] > 19.9  # stuck
+    assert before_squash[0.01] < 19.0
+    with pytest.raises(ValueError, match="preactivation_penalty must be a finite number >= 0"):
+        TD3(dataclasses.replace(tiny(TD3Config), preactivation_penalty=-0.1), env, params)
+
+
 def test_discrete_environments_and_wrong_configs_are_refused(corridor):
     env, params = corridor
     warehouse, warehouse_params = make("Warehouse-8x8-v0")

@@ -207,6 +207,10 @@ class TD3Config(OffPolicyConfig):
 
     Static:
         policy_delay: gradient steps per actor (and target) update.
+        preactivation_penalty: weight of the mean square of the actor's output before its tanh, added to the
+            actor's loss (0: none, the term left out of the program). Why: an actor pushed deep into the squash
+            gets no gradient through it (1 - tanh^2 is nearly 0) and can stay there, commanding the same action
+            in every state.
 
     Traced:
         policy_noise: standard deviation of the target policy's smoothing noise.
@@ -221,9 +225,16 @@ class TD3Config(OffPolicyConfig):
     policy_noise: float = 0.2
     noise_clip: float = 0.5
     exploration_noise: float = 0.1
+    preactivation_penalty: float = 0.0
 
     def extra_positive_ints(self) -> tuple[str, ...]:
         return ("policy_delay",)
+
+    def validate(self) -> None:
+        super().validate()
+        penalty = self.preactivation_penalty
+        if isinstance(penalty, bool) or not isinstance(penalty, (int, float)) or not 0.0 <= penalty < float("inf"):
+            raise ValueError(f"{self.owner}.preactivation_penalty must be a finite number >= 0, got {penalty!r}")
 
 
 SB3_SAC = SACConfig(

@@ -70,10 +70,13 @@ class TD3(OffPolicyActorCritic):
 
         def actor_update(r: OffPolicyRunner) -> tuple[OffPolicyRunner, jax.Array]:
             def actor_loss(actor):
-                action = self.deterministic_unit_action(actor, batch.obs)
+                before_squash = self.actor_forward(actor, batch.obs)
                 first_critic = jax.tree.map(lambda x: x[0], r.critic)
-                inputs = jnp.concatenate([batch.obs, action], axis=-1)
-                return -mlp(first_critic, inputs, self.config.activation)[..., 0].mean()
+                inputs = jnp.concatenate([batch.obs, jnp.tanh(before_squash)], axis=-1)
+                loss = -mlp(first_critic, inputs, self.config.activation)[..., 0].mean()
+                if self.config.preactivation_penalty:  # static: without it the program is TD3's own
+                    loss = loss + self.config.preactivation_penalty * jnp.square(before_squash).mean()
+                return loss
 
             loss, grads = jax.value_and_grad(actor_loss)(r.actor)
             actor, actor_opt = self.adam_step(r.actor, grads, r.actor_opt, learning_rate)
