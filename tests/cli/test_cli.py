@@ -77,6 +77,27 @@ def test_resume_continues_exactly(finished_run, tmp_path):
     assert (finished_run / "metrics.csv").read_text() == (out / "metrics.csv").read_text()
 
 
+def test_a_run_saved_before_a_setting_existed_still_resumes(finished_run, tmp_path):
+    """A checkpoint whose config lacks a field (a setting added since it was written, at its default: the behaviour
+    the run trained with) resumes as if the field had been saved, to the uninterrupted run's bits."""
+    from wrl_jax.agents.base import config_to_dict
+    from wrl_jax.agents.ppo_config import PPOConfig
+
+    out = tmp_path / "older"
+    assert cli_train.main("ppo", [*TINY, "--out", str(out), "--stop-after", "2"]) == 0
+    path = out / "checkpoint.msgpack"
+    payload = checkpoint.serialization.msgpack_restore(path.read_bytes())
+    metadata = json.loads(payload["metadata"])
+    defaults = config_to_dict(PPOConfig())
+    added = sorted(name for name, value in metadata["config"].items() if defaults[name] == value)[0]
+    del metadata["config"][added]
+    path.write_bytes(checkpoint.serialization.msgpack_serialize({**payload, "metadata": json.dumps(metadata)}))
+    assert cli_train.main("ppo", ["--resume", "--out", str(out), "--no-progress"]) == 0
+    a = checkpoint.serialization.msgpack_restore((finished_run / "checkpoint.msgpack").read_bytes())["leaves"]
+    b = checkpoint.serialization.msgpack_restore(path.read_bytes())["leaves"]
+    assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
 def test_evaluation_command_loads_the_checkpoint(finished_run, tmp_path):
     result = tmp_path / "eval.json"
     code = subprocess.run(

@@ -175,7 +175,8 @@ def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
     return json.loads(_read_payload(resolve(path))["metadata"])
 
 
-def load(path: str | os.PathLike, template: Any, expected: dict[str, Any] | None = None) -> tuple[Any, dict]:
+def load(path: str | os.PathLike, template: Any, expected: dict[str, Any] | None = None,
+         absent: dict[str, Any] | None = None) -> tuple[Any, dict]:
     """Read a checkpoint into the structure of ``template``.
 
     Args:
@@ -183,6 +184,7 @@ def load(path: str | os.PathLike, template: Any, expected: dict[str, Any] | None
         template: a pytree with the runner's structure; leaves may be arrays or
             ``jax.ShapeDtypeStruct`` (``jax.eval_shape`` of the batched init).
         expected: metadata fields that must match (see :func:`check_compatible`).
+        absent: what a field missing from an older checkpoint stands for (see :func:`check_compatible`).
 
     Returns:
         ``(tree, metadata)`` with the tree's leaves as ``jax.Array``.
@@ -195,7 +197,7 @@ def load(path: str | os.PathLike, template: Any, expected: dict[str, Any] | None
     payload = _read_payload(path)
     metadata = json.loads(payload["metadata"])
     if expected is not None:
-        check_compatible(metadata, expected, where=str(path))
+        check_compatible(metadata, expected, where=str(path), absent=absent)
     stored: dict[str, np.ndarray] = payload["leaves"]
     template_leaves = _flatten(template)
     missing = sorted(set(template_leaves) - set(stored))
@@ -230,13 +232,16 @@ def load(path: str | os.PathLike, template: Any, expected: dict[str, Any] | None
     return jax.tree_util.tree_unflatten(treedef, [restored[name] for name in order]), metadata
 
 
-def check_compatible(saved: dict[str, Any], expected: dict[str, Any], where: str = "checkpoint") -> None:
+def check_compatible(saved: dict[str, Any], expected: dict[str, Any], where: str = "checkpoint",
+                     absent: dict[str, Any] | None = None) -> None:
     """Raise :class:`CheckpointMismatchError` listing every field of ``expected`` that ``saved`` differs in.
 
     Nested dicts (the algorithm config, environment overrides) are compared key by key
-    so the message names e.g. ``config.learning_rate``.
+    so the message names e.g. ``config.learning_rate``. ``absent`` (nested alike) gives the value a key
+    missing from ``saved`` stands for: a setting added after the checkpoint was written, whose default
+    is what that run trained with.
     """
-    differences = list(_differences(saved, expected, prefix=""))
+    differences = list(_differences(saved, expected, prefix="", absent=absent or {}))
     if differences:
         lines = "\n".join(f"  {name}: checkpoint has {old!r}, this run has {new!r}" for name, old, new in differences)
         raise CheckpointMismatchError(
@@ -246,11 +251,13 @@ def check_compatible(saved: dict[str, Any], expected: dict[str, Any], where: str
         )
 
 
-def _differences(saved: Any, expected: Any, prefix: str) -> Iterable[tuple[str, Any, Any]]:
+def _differences(saved: Any, expected: Any, prefix: str, absent: Any) -> Iterable[tuple[str, Any, Any]]:
     if isinstance(expected, dict):
         saved = saved if isinstance(saved, dict) else {}
+        absent = absent if isinstance(absent, dict) else {}
         for key in expected:
-            yield from _differences(saved.get(key, "<absent>"), expected[key], f"{prefix}{key}.")
+            missing = absent[key] if key in absent and not isinstance(absent[key], dict) else "<absent>"
+            yield from _differences(saved.get(key, missing), expected[key], f"{prefix}{key}.", absent.get(key))
         return
     saved_j, expected_j = json.loads(json.dumps(saved)), json.loads(json.dumps(expected))
     if saved_j != expected_j:

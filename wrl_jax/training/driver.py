@@ -45,7 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from wrl_jax.agents.base import Algorithm
+from wrl_jax.agents.base import Algorithm, config_to_dict
 from wrl_jax.core import evaluation as family_evaluation
 from wrl_jax.core.tracing import traced_once
 from wrl_jax.training import checkpoint, metrics_io
@@ -259,6 +259,18 @@ class RunResult:
     latest_eval: LatestEval | None = None
 
 
+def settings_added_later(algo: Any) -> dict[str, Any]:
+    """What a config field missing from an older checkpoint stands for: its class default (the behaviour that run
+    trained with before the field existed), so adding a setting does not refuse the resume of older runs."""
+    config = getattr(algo, "config", None)
+    if not dataclasses.is_dataclass(config):
+        return {}
+    try:
+        return {"config": config_to_dict(type(config)())}
+    except TypeError:  # a config class with required fields has no defaults to stand in
+        return {}
+
+
 def run(
     trainer: Trainer,
     out_dir: str | os.PathLike | None = None,
@@ -304,7 +316,8 @@ def run(
     if resume:
         if out is None:
             raise ValueError("resume needs an output directory holding a checkpoint")
-        runners, saved = checkpoint.load(out, jax.eval_shape(lambda: runners), expected=run_meta)
+        runners, saved = checkpoint.load(out, jax.eval_shape(lambda: runners), expected=run_meta,
+                                         absent=settings_added_later(trainer.algo))
         start = int(saved["updates_done"])
         train_seconds = float(saved.get("train_seconds", 0.0))
         convergence = Convergence.from_json(saved.get("convergence", {}), solved_key=trainer.evaluation.solved_key)
