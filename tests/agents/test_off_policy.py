@@ -295,8 +295,9 @@ def test_td3_preactivation_penalty_draws_a_saturated_actor_out_of_the_squash(cor
         before_squash[penalty] = float(jnp.abs(algo.actor_forward(runner.actor, obs)).mean())
     assert before_squash[0.0] > 19.9  # stuck
     assert before_squash[0.01] < 19.0
-    with pytest.raises(ValueError, match="preactivation_penalty must be a finite number >= 0"):
-        TD3(dataclasses.replace(tiny(TD3Config), preactivation_penalty=-0.1), env, params)
+    for bad in (-0.1, float("nan"), float("inf"), True, "0.1"):
+        with pytest.raises(ValueError, match="preactivation_penalty must be a finite number >= 0"):
+            TD3(dataclasses.replace(tiny(TD3Config), preactivation_penalty=bad), env, params)
 
 
 def test_discrete_environments_and_wrong_configs_are_refused(corridor):

@@ -208,7 +208,7 @@ class TD3Config(OffPolicyConfig):
     Static:
         policy_delay: gradient steps per actor (and target) update.
         preactivation_penalty: weight of the mean square of the actor's output before its tanh, added to the
-            actor's loss (0: none, the term left out of the program). Why: an actor pushed deep into the squash
+            actor's loss (0: none, the term left out of the program; the logged ``actor_loss`` includes it). Why: an actor pushed deep into the squash
             gets no gradient through it (1 - tanh^2 is nearly 0) and can stay there, commanding the same action
             in every state.
 
@@ -293,8 +293,8 @@ TD3_ENV_DEFAULTS = {name: ROUTE_ENV_DEFAULTS if name in ROUTE_NAMES else
                     DYNAMIC_ENV_DEFAULTS if name == DYNAMIC_NAME else CONTINUOUS_ENV_DEFAULTS
                     for name in CONTINUOUS_NAMES}
 """TD3's environment defaults per id: the route on the study's static maps, without the stop (over it, 800k steps,
-seeds 0-11: 9 of 12 solved and 3 that never deliver, against 4 of 8 solved and 8 of 8 delivering every item
-without it at 400k; bench/results/continuous/NOTES.md)."""
+seeds 0-11: 9 of 12 solved and 3 that never deliver, 11 of 12 with ``preactivation_penalty=0.001``, against 4 of 8
+solved and 8 of 8 delivering every item without it at 400k; bench/results/continuous/NOTES.md)."""
 SAC_ENV_DEFAULTS = {**TD3_ENV_DEFAULTS, **{name: GUARDED_ENV_DEFAULTS for name in ROUTE_NAMES}}
 """SAC's environment defaults per id: the safety stop and the held value on the static maps too (12x12, seeds 0-31,
 one device: 32 of 32 solved, against 29 with the route alone and 30 with the stop but not the value in view; the value
