@@ -208,9 +208,9 @@ class TD3Config(OffPolicyConfig):
     Static:
         policy_delay: gradient steps per actor (and target) update.
         preactivation_penalty: weight of the mean square of the actor's output before its tanh, added to the
-            actor's loss (0: none, the term left out of the program; the logged ``actor_loss`` includes it). Why: an actor pushed deep into the squash
-            gets no gradient through it (1 - tanh^2 is nearly 0) and can stay there, commanding the same action
-            in every state.
+            actor's loss (0: none, the term left out of the program; the logged ``actor_loss`` includes it).
+            Why: an actor pushed deep into the squash gets no gradient through it (1 - tanh^2 is nearly 0) and
+            can stay there, commanding the same action in every state.
 
     Traced:
         policy_noise: standard deviation of the target policy's smoothing noise.
