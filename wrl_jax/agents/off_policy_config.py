@@ -293,7 +293,7 @@ TD3_ENV_DEFAULTS = {name: ROUTE_ENV_DEFAULTS if name in ROUTE_NAMES else
                     DYNAMIC_ENV_DEFAULTS if name == DYNAMIC_NAME else CONTINUOUS_ENV_DEFAULTS
                     for name in CONTINUOUS_NAMES}
 """TD3's environment defaults per id: the route on the study's static maps, without the stop (over it, 800k steps,
-seeds 0-11: 9 of 12 solved and 3 that never deliver; 15 of 16 with ``preactivation_penalty=0.001``; against 4 of 8
+seeds 0-11: 9 of 12 solved and 3 that never deliver; 18 of 20 (seeds 0-19) with ``preactivation_penalty=0.001``; against 4 of 8
 solved and 8 of 8 delivering every item without it at 400k; bench/results/continuous/NOTES.md)."""
 SAC_ENV_DEFAULTS = {**TD3_ENV_DEFAULTS, **{name: GUARDED_ENV_DEFAULTS for name in ROUTE_NAMES}}
 """SAC's environment defaults per id: the safety stop and the held value on the static maps too (12x12, seeds 0-31,
