@@ -70,9 +70,9 @@ from bench.sb3_dqn import load_average, write_results  # noqa: E402
 def env_view(env_name: str) -> dict[str, Any]:
     """SAC's default overrides for ``env_name`` (``python train_sac.py --env ENV``), less the safety stop and the
     held value on the static maps: the route alone there, the view the committed comparison measured."""
-    from wrl_jax.agents.off_policy_config import ROUTE_ENV_DEFAULTS, ROUTE_NAMES, SAC_ENV_DEFAULTS
+    from wrl_jax.agents.off_policy_config import OFF_POLICY_ENV_DEFAULTS, ROUTE_ENV_DEFAULTS, ROUTE_NAMES
 
-    return dict(ROUTE_ENV_DEFAULTS if env_name in ROUTE_NAMES else SAC_ENV_DEFAULTS.get(env_name, {}))
+    return dict(ROUTE_ENV_DEFAULTS if env_name in ROUTE_NAMES else OFF_POLICY_ENV_DEFAULTS.get(env_name, {}))
 
 
 def flops_per_env_step(config, env_name: str) -> float:

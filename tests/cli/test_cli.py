@@ -308,7 +308,7 @@ def test_the_continuous_collision_penalty_observed_obstacles_and_off_policy_sett
     assert float(algo.env_params.collision_penalty) == -50.0
     assert not algo.env.observe_obstacles and algo.env.obs_size == 11 + 32 + 5 + 3  # the route kept
     command = cli_options.parse("td3", ["--env", "Continuous-Warehouse-8x8-v0", "--observe-obstacles", "True",
-                                        "--out", str(tmp_path / "o")])
+                                        "--safety-stop", "False", "--out", str(tmp_path / "o")])
     algo = build(command.spec, command.config, command.env)
     assert algo.env.observe_obstacles and algo.env.obs_size == 11 + 32 + 5 + 32 + 2 + 3  # the route last
     assert cli_options.parse("sac", ["--target-entropy", "-4", "--out", str(tmp_path / "t")]).config.target_entropy == -4.0
@@ -343,10 +343,10 @@ def test_the_safety_stop_is_a_flag_of_the_continuous_warehouse_and_refused_with_
 
 
 def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obstacles_where_they_move(tmp_path):
-    """SAC's and TD3's commands add geodesic shaping and ``observe_route`` on the study's maps (the procedural
-    variant has no distance fields), SAC's also the safety stop with its held value in view; PPO keeps the target
-    alone there; on the moving obstacles' map every learner also sees the obstacles, and PPO trains for the 3M steps
-    measured there (SAC and TD3 for 800k); the flags turn it off, and a route without the fields is refused by name
+    """SAC's and TD3's commands add geodesic shaping, ``observe_route`` and the safety stop with its held value in
+    view on the study's maps (the procedural variant has no distance fields); PPO keeps the target alone there; on
+    the moving obstacles' map every learner also sees the obstacles, and PPO trains for the 3M steps measured there
+    (SAC for 800k, as TD3 does everywhere); the flags turn it off, and a route without the fields is refused by name
     when the environment is built, before anything compiles."""
     dynamic = "Continuous-Warehouse-12x12-Dynamic-v0"
     for algo in ("sac", "td3"):
@@ -355,12 +355,10 @@ def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obsta
             overrides = command.env.overrides()
             assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"]) == (
                 "geodesic", True, True), (algo, name)
-            if algo == "sac":  # and the safety stop, with how long it has held the robot in view
-                assert (overrides["observe_obstacles"], overrides["safety_stop"]) == (True, True), name
-                env = build(command.spec, command.config, command.env).env
-                assert env.safety_margin == 0.05 and env.observe_held, name
-            else:
-                assert "observe_obstacles" not in overrides and "safety_stop" not in overrides
+            # and the safety stop, with how long it has held the robot in view
+            assert (overrides["observe_obstacles"], overrides["safety_stop"]) == (True, True), (algo, name)
+            env = build(command.spec, command.config, command.env).env
+            assert env.safety_margin == 0.05 and env.observe_held, (algo, name)
         overrides = cli_options.parse(algo, ["--env", "Continuous-Procedural-Warehouse-v0", "--out",
                                              str(tmp_path / algo)]).env.overrides()
         assert "observe_route" not in overrides and "shaping" not in overrides and overrides["observe_target"]
@@ -370,10 +368,13 @@ def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obsta
                 overrides["observe_obstacles"], overrides["safety_stop"]) == ("geodesic", True, True, True, True), algo
     ppo = cli_options.parse("ppo", ["--env", dynamic, "--out", str(tmp_path / "p")])
     assert ppo.run.preset == "continuous_dynamic" and ppo.config.total_timesteps == 3_000_000
-    for algo in ("sac", "td3"):  # twice the static maps' steps
-        command = cli_options.parse(algo, ["--env", dynamic, "--out", str(tmp_path / algo)])
-        assert command.run.preset == "dynamic" and command.config.total_timesteps == 800_000, algo
-        assert cli_options.parse(algo, ["--out", str(tmp_path / "s12")]).config.total_timesteps == 400_000, algo
+    sac = cli_options.parse("sac", ["--env", dynamic, "--out", str(tmp_path / "sac")])  # twice the static maps'
+    assert sac.run.preset == "dynamic" and sac.config.total_timesteps == 800_000
+    assert cli_options.parse("sac", ["--out", str(tmp_path / "s12")]).config.total_timesteps == 400_000
+    for env_args in (["--env", dynamic], []):  # TD3: one preset, 800k and the penalty everywhere
+        td3 = cli_options.parse("td3", [*env_args, "--out", str(tmp_path / "t")])
+        assert td3.run.preset == "default" and td3.config.total_timesteps == 800_000, env_args
+        assert td3.config.preactivation_penalty == 0.001, env_args
     alone = cli_options.parse("ppo", ["--env", dynamic, "--shaping", "manhattan", "--observe-route", "False",
                                       "--observe-obstacles", "False", "--out", str(tmp_path / "alone")])
     assert build(alone.spec, alone.config, alone.env).env.obs_size == 11 + 32 + 5  # the docs' target-alone rows
@@ -382,7 +383,7 @@ def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obsta
     command = cli_options.parse("td3", ["--env", "Continuous-Warehouse-8x8-v0", "--observe-route", "False",
                                         "--out", str(tmp_path / "off")])
     algo = build(command.spec, command.config, command.env)
-    assert algo.env.obs_size == 11 + 32 + 5 and not algo.env.observe_route  # geodesic shaping kept, no route
+    assert algo.env.obs_size == 11 + 32 + 5 + (32 + 2 + 1) and not algo.env.observe_route  # the stop kept, no route
     command = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--shaping", "manhattan",
                                         "--out", str(tmp_path / "bad")])
     with pytest.raises(ValueError, match="observe_route reads the geodesic shaping's distance fields"):

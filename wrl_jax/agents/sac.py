@@ -28,7 +28,7 @@ import jax.numpy as jnp
 
 from wrl_jax.agents.base import AlgoSpec, Metrics
 from wrl_jax.agents.off_policy import OffPolicyActorCritic, OffPolicyRunner
-from wrl_jax.agents.off_policy_config import DYNAMIC_NAME, SAC_ENV_DEFAULTS, SAC_PRESETS, SACConfig, SACHyper
+from wrl_jax.agents.off_policy_config import DYNAMIC_NAME, OFF_POLICY_ENV_DEFAULTS, SAC_PRESETS, SACConfig, SACHyper
 
 LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0
 """The actor's log standard deviation is clipped to this range (as SB3 and the SAC paper's code)."""
@@ -158,5 +158,5 @@ SPEC = AlgoSpec(
     default_preset="default",
     default_num_seeds=4,
     env_presets={DYNAMIC_NAME: "dynamic"},
-    env_defaults=SAC_ENV_DEFAULTS,
+    env_defaults=OFF_POLICY_ENV_DEFAULTS,
 )

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 
 from wrl_jax.agents.base import AlgoSpec, Metrics
 from wrl_jax.agents.off_policy import OffPolicyActorCritic, OffPolicyRunner, mlp
-from wrl_jax.agents.off_policy_config import DYNAMIC_NAME, TD3_ENV_DEFAULTS, TD3_PRESETS, TD3Config, TD3Hyper
+from wrl_jax.agents.off_policy_config import OFF_POLICY_ENV_DEFAULTS, TD3_PRESETS, TD3Config, TD3Hyper
 
 
 class TD3(OffPolicyActorCritic):
@@ -107,6 +107,5 @@ SPEC = AlgoSpec(
     default_env="Continuous-Warehouse-12x12-v0",
     default_preset="default",
     default_num_seeds=4,
-    env_presets={DYNAMIC_NAME: "dynamic"},
-    env_defaults=TD3_ENV_DEFAULTS,
+    env_defaults=OFF_POLICY_ENV_DEFAULTS,
 )
