@@ -1,7 +1,7 @@
 """Train TD3 on a continuous warehouse: ``python train_td3.py --help`` lists every flag.
 
-Defaults: Continuous-Warehouse-12x12-v0, the ``default`` preset (``dynamic``, 800k steps,
-on Continuous-Warehouse-12x12-Dynamic-v0), 4 seeds at once.
+Defaults: Continuous-Warehouse-12x12-v0, the ``default`` preset (800k steps, the actor's preactivation
+penalty 0.001) on every id, 4 seeds at once.
 See docs/continuous.md.
 """
 

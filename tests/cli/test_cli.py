@@ -98,6 +98,21 @@ def test_a_run_saved_before_a_setting_existed_still_resumes(finished_run, tmp_pa
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
 
 
+def test_a_run_saved_under_a_retired_preset_name_still_resumes(finished_run, tmp_path):
+    """The preset a checkpoint records is a label (its config is saved whole): a run saved under a name that is no
+    longer a preset (TD3's ``dynamic``, folded into its default) resumes to the uninterrupted run's bits."""
+    out = tmp_path / "retired"
+    assert cli_train.main("ppo", [*TINY, "--out", str(out), "--stop-after", "2"]) == 0
+    path = out / "checkpoint.msgpack"
+    payload = checkpoint.serialization.msgpack_restore(path.read_bytes())
+    metadata = {**json.loads(payload["metadata"]), "preset": "retired"}
+    path.write_bytes(checkpoint.serialization.msgpack_serialize({**payload, "metadata": json.dumps(metadata)}))
+    assert cli_train.main("ppo", ["--resume", "--out", str(out), "--no-progress"]) == 0
+    a = checkpoint.serialization.msgpack_restore((finished_run / "checkpoint.msgpack").read_bytes())["leaves"]
+    b = checkpoint.serialization.msgpack_restore(path.read_bytes())["leaves"]
+    assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
 def test_evaluation_command_loads_the_checkpoint(finished_run, tmp_path):
     result = tmp_path / "eval.json"
     code = subprocess.run(

@@ -253,7 +253,7 @@ SAC_DEFAULT = SACConfig(
     target_entropy=-6.0,  # -3|A| (the paper: -|A|): the greedy command saturates (96.5 steps per item, not 99)
     actor_average=0.001,  # the greedy policy is a Polyak average of the actor: one grazing step flips a snapshot
 )
-"""Ours for the continuous warehouse: on 12x12 with :data:`SAC_ENV_DEFAULTS` (the route, the safety stop), seeds 0-31,
+"""Ours for the continuous warehouse: on 12x12 with :data:`OFF_POLICY_ENV_DEFAULTS` (the route, the safety stop), seeds 0-31,
 ``train_sac.py``'s split over 2 cores: every item without a contact on 31 of 32 seeds (on one device 32; the route
 alone: 29; the paper's target entropy without the average, the route alone: 16 of 24);
 bench/results/continuous/NOTES.md."""
@@ -273,7 +273,7 @@ DYNAMIC_NAME = "Continuous-Warehouse-12x12-Dynamic-v0"
 CONTINUOUS_NAMES = (
     "Continuous-Warehouse-8x8-v0", "Continuous-Warehouse-12x12-v0", DYNAMIC_NAME, "Continuous-Procedural-Warehouse-v0")
 """The continuous warehouse's registered ids (the study's maps and the procedural variant), where PPO trains with
-:data:`CONTINUOUS_ENV_DEFAULTS` (:data:`DYNAMIC_ENV_DEFAULTS` with moving obstacles), SAC with
+:data:`CONTINUOUS_ENV_DEFAULTS` (:data:`DYNAMIC_ENV_DEFAULTS` with moving obstacles), SAC and TD3 with
 :data:`OFF_POLICY_ENV_DEFAULTS`."""
 CONTINUOUS_ENV_DEFAULTS = {"observe_target": True}
 """What a training command gives the continuous warehouse unless its flags say otherwise: the target seen

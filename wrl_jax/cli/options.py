@@ -266,7 +266,7 @@ def validate(command: Command) -> None:
     from wrl_jax.core import registry
 
     run, spec = command.run, command.spec
-    if run.preset not in spec.presets:
+    if run.preset not in spec.presets and not run.resume:  # resumed, it is the checkpoint's label (maybe retired)
         raise ValueError(f"unknown {spec.name} preset {run.preset!r}; choose from {sorted(spec.presets)}")
     family = registry.entry(command.env.env).family  # unknown environment -> ValueError
     misplaced = [name for name, families in FAMILY_OPTIONS.items()
