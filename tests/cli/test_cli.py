@@ -77,40 +77,40 @@ def test_resume_continues_exactly(finished_run, tmp_path):
     assert (finished_run / "metrics.csv").read_text() == (out / "metrics.csv").read_text()
 
 
+def resumes_to_the_same_bits(finished_run, out, edit) -> bool:
+    """Train the tiny PPO run two updates into ``out``, let ``edit`` rewrite its checkpoint's metadata (as an older
+    version would have written it), resume it to the end: whether its leaves equal the uninterrupted run's."""
+    assert cli_train.main("ppo", [*TINY, "--out", str(out), "--stop-after", "2"]) == 0
+    path = out / "checkpoint.msgpack"
+    payload = checkpoint.serialization.msgpack_restore(path.read_bytes())
+    metadata = edit(json.loads(payload["metadata"]))
+    path.write_bytes(checkpoint.serialization.msgpack_serialize({**payload, "metadata": json.dumps(metadata)}))
+    assert cli_train.main("ppo", ["--resume", "--out", str(out), "--no-progress"]) == 0
+    a = checkpoint.serialization.msgpack_restore((finished_run / "checkpoint.msgpack").read_bytes())["leaves"]
+    b = checkpoint.serialization.msgpack_restore(path.read_bytes())["leaves"]
+    return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
 def test_a_run_saved_before_a_setting_existed_still_resumes(finished_run, tmp_path):
     """A checkpoint whose config lacks a field (a setting added since it was written, at its default: the behaviour
     the run trained with) resumes as if the field had been saved, to the uninterrupted run's bits."""
     from wrl_jax.agents.base import config_to_dict
     from wrl_jax.agents.ppo_config import PPOConfig
 
-    out = tmp_path / "older"
-    assert cli_train.main("ppo", [*TINY, "--out", str(out), "--stop-after", "2"]) == 0
-    path = out / "checkpoint.msgpack"
-    payload = checkpoint.serialization.msgpack_restore(path.read_bytes())
-    metadata = json.loads(payload["metadata"])
     defaults = config_to_dict(PPOConfig())
-    added = sorted(name for name, value in metadata["config"].items() if defaults[name] == value)[0]
-    del metadata["config"][added]
-    path.write_bytes(checkpoint.serialization.msgpack_serialize({**payload, "metadata": json.dumps(metadata)}))
-    assert cli_train.main("ppo", ["--resume", "--out", str(out), "--no-progress"]) == 0
-    a = checkpoint.serialization.msgpack_restore((finished_run / "checkpoint.msgpack").read_bytes())["leaves"]
-    b = checkpoint.serialization.msgpack_restore(path.read_bytes())["leaves"]
-    assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+    def drop_a_default_field(metadata):
+        added = sorted(name for name, value in metadata["config"].items() if defaults[name] == value)[0]
+        del metadata["config"][added]
+        return metadata
+
+    assert resumes_to_the_same_bits(finished_run, tmp_path / "older", drop_a_default_field)
 
 
 def test_a_run_saved_under_a_retired_preset_name_still_resumes(finished_run, tmp_path):
     """The preset a checkpoint records is a label (its config is saved whole): a run saved under a name that is no
     longer a preset (TD3's ``dynamic``, folded into its default) resumes to the uninterrupted run's bits."""
-    out = tmp_path / "retired"
-    assert cli_train.main("ppo", [*TINY, "--out", str(out), "--stop-after", "2"]) == 0
-    path = out / "checkpoint.msgpack"
-    payload = checkpoint.serialization.msgpack_restore(path.read_bytes())
-    metadata = {**json.loads(payload["metadata"]), "preset": "retired"}
-    path.write_bytes(checkpoint.serialization.msgpack_serialize({**payload, "metadata": json.dumps(metadata)}))
-    assert cli_train.main("ppo", ["--resume", "--out", str(out), "--no-progress"]) == 0
-    a = checkpoint.serialization.msgpack_restore((finished_run / "checkpoint.msgpack").read_bytes())["leaves"]
-    b = checkpoint.serialization.msgpack_restore(path.read_bytes())["leaves"]
-    assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+    assert resumes_to_the_same_bits(finished_run, tmp_path / "retired", lambda metadata: {**metadata, "preset": "retired"})
 
 
 def test_evaluation_command_loads_the_checkpoint(finished_run, tmp_path):
