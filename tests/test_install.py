@@ -44,6 +44,17 @@ def test_locks_pin_every_package_with_hashes_and_core_is_a_subset_of_test():
         assert test.get(name) == entry, f"{name}: core lock {entry[0]}, test lock {test.get(name, ('absent',))[0]}"
 
 
+def test_the_installer_is_pinned_by_hash_and_the_makefile_falls_back_to_pip():
+    """``make`` installs the locks with uv (requirements/uv.txt, every wheel's hash, no sdist) and with pip where
+    uv cannot: both read the same lock with ``--require-hashes --no-deps``."""
+    (version, hashes), = _locked(LOCKS / "uv.txt").values()
+    assert re.fullmatch(r"\d+\.\d+\.\d+", version) and len(hashes) >= 10
+    makefile = (ROOT / "Makefile").read_text()
+    uv_line = next(line for line in makefile.splitlines() if line.startswith("install_lock"))
+    assert "--require-hashes --no-deps" in uv_line and "$(PIP) $(LOCKED) -r $(1)" in makefile
+    assert "--require-hashes --no-deps" in makefile.split("LOCKED :=")[1].splitlines()[0]
+
+
 def test_locks_hold_what_pyproject_declares():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     core, test = _locked(LOCKS / "core.txt"), _locked(LOCKS / "test.txt")
