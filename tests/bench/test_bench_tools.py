@@ -21,14 +21,65 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def run_tool(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=300)
+TOOL_RUNS = {
+    "step_profile": ["bench/investigations/fleet_step_profile.py", "--robots", "2", "--batch", "16", "--devices", "2",
+                     "--horizon", "4", "--repeats", "1", "--parts", "core", "obs", "--baseline",
+                     "wrl_jax/envs/fleet/env.py", "--trace"],
+    "observation_floor": ["bench/investigations/observation_floor.py", "--batch", "8", "--devices", "2", "--horizon",
+                          "2", "--repeats", "1"],
+}
+"""The command lines run as a user runs them: each splits the CPU into host devices before it starts JAX."""
+
+LAUNCHER = """
+import json, os, runpy, sys, traceback
+import ml_dtypes, numpy  # noqa: F401  (what both tools load before JAX; loaded once, then a process per tool)
+assert "jax" not in sys.modules
 
 
-def test_step_profile_splits_over_devices_and_times_a_baseline():
-    done = run_tool("bench/investigations/fleet_step_profile.py", "--robots", "2", "--batch", "16", "--devices", "2", "--horizon",
-                    "4", "--repeats", "1", "--parts", "core", "obs", "--baseline", "wrl_jax/envs/fleet/env.py",
-                    "--trace")
+def run(argv, out, err):  # in a forked child: ``python *argv`` with its output to the files out and err
+    os.dup2(os.open(out, os.O_WRONLY | os.O_CREAT | os.O_TRUNC), 1)
+    os.dup2(os.open(err, os.O_WRONLY | os.O_CREAT | os.O_TRUNC), 2)
+    sys.argv, sys.path[0] = argv, os.path.dirname(os.path.abspath(argv[0]))
+    code = 0
+    try:
+        runpy.run_path(argv[0], run_name="__main__")
+    except SystemExit as exit:
+        code = exit.code if isinstance(exit.code, int) else int(exit.code is not None)
+    except BaseException:
+        traceback.print_exc()
+        code = 1
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
+pids = []
+for argv, out, err in json.loads(sys.argv[1]):
+    pid = os.fork()
+    if pid == 0:
+        run(argv, out, err)
+    pids.append(pid)
+print(json.dumps([os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]) for pid in pids]))
+"""
+"""Runs :data:`TOOL_RUNS` at once, each in a process of its own forked by one interpreter that loaded NumPy and
+ml_dtypes (more than a second of CPU per process) for both, instead of two fresh interpreters."""
+
+
+@pytest.fixture(scope="module")
+def tool_runs(tmp_path_factory):
+    """``{name: CompletedProcess}`` of :data:`TOOL_RUNS`."""
+    folder = tmp_path_factory.mktemp("tools")
+    runs = [(argv, str(folder / f"{name}.out"), str(folder / f"{name}.err")) for name, argv in TOOL_RUNS.items()]
+    done = subprocess.run([sys.executable, "-c", LAUNCHER, json.dumps(runs)], cwd=ROOT, capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    codes = json.loads(done.stdout.strip().splitlines()[-1])
+    return {name: subprocess.CompletedProcess(argv, code, Path(out).read_text(), Path(err).read_text())
+            for (name, argv), code, (_, out, err) in zip(TOOL_RUNS.items(), codes, runs)}
+
+
+def test_step_profile_splits_over_devices_and_times_a_baseline(tool_runs):
+    done = tool_runs["step_profile"]
     assert done.returncode == 0, done.stderr
     report = json.loads(done.stdout.strip().splitlines()[-1])
     assert report["devices"] == 2
@@ -65,7 +116,7 @@ def test_pibt_profile_refuses_a_baseline_that_plans_other_moves(tmp_path, capsys
         pibt_profile(["--robots", "2", "--batch", "32", "--repeats", "1", "--baseline", str(other)])
 
 
-def test_observation_floor_sums_what_it_writes_and_splits_over_devices():
+def test_observation_floor_sums_what_it_writes_and_splits_over_devices(tool_runs):
     """``bench/investigations/observation_floor.py``: the written arrays are summed exactly (checked against NumPy in this
     process, one device) and the command line splits the batch over host devices."""
     sys.path.insert(0, str(ROOT / "bench" / "investigations"))
@@ -78,7 +129,7 @@ def test_observation_floor_sums_what_it_writes_and_splits_over_devices():
     base = np.broadcast_to(np.arange(width), (batch, robots, width))
     expected = sum(float((base + t).sum() + (base - t).sum()) for t in range(horizon))
     assert total == expected
-    done = run_tool("bench/investigations/observation_floor.py", "--batch", "8", "--devices", "2", "--horizon", "2", "--repeats", "1")
+    done = tool_runs["observation_floor"]
     assert done.returncode == 0, done.stderr
     rows = json.loads(done.stdout.strip().splitlines()[-1])
     assert rows[0]["devices"] == 2 and rows[0]["robot_steps_per_s"] > 0

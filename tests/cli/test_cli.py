@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+import commands_level
 
 from wrl_jax.training import checkpoint
 from wrl_jax.training import metrics_io
@@ -21,6 +23,7 @@ from wrl_jax.agents.base import config_from_dict, config_to_dict
 from wrl_jax.cli import options as cli_options
 from wrl_jax.cli import train as cli_train
 from wrl_jax.cli.options import build
+from wrl_jax.envs.continuous import geodesic
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = [
@@ -32,6 +35,17 @@ SUMMARY_FIELDS = {
     "algo", "env", "num_seeds", "total_timesteps", "compile_seconds", "train_seconds", "env_steps_per_second", "eval",
 }  # fmt: skip
 EVAL_FIELDS = {"success_rate", "mean_steps", "optimal_mean_steps", "collision_free_rate", "mean_return", "rows"}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def geodesic_fields_at_the_commands_level():
+    """The continuous maps' geodesic fields (the package's Bellman-Ford loop, hundreds of sweeps, run once per layout
+    and remembered) compiled at the commands' LLVM level: the session's level 0 runs that loop five times slower
+    (3.5 s of CPU for the 12x12 map with moving obstacles, against 0.6 s), and its adds and minimums round alike at
+    every level (the three maps' params compared bit for bit, 2026-12-06)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(geodesic, "_relax", commands_level.jit(geodesic._relax.__wrapped__, static_argnums=3))
+        yield
 
 
 @pytest.fixture(scope="module")
@@ -62,39 +76,48 @@ def test_a_run_writes_every_output(finished_run, capsys):
     assert "| Task Completion Rate |" in (out / "evaluation.md").read_text()
 
 
-def test_resume_continues_exactly(finished_run, tmp_path):
-    out = tmp_path / "split"
+@pytest.fixture(scope="module")
+def stopped_run(tmp_path_factory):
+    """The tiny run stopped after 2 updates (no evaluation yet: a stop right after one is the driver's resume test,
+    tests/training): each resume test below continues a copy of it, so the stopped run trains once for the three."""
+    out = tmp_path_factory.mktemp("stopped") / "run"
     assert cli_train.main("ppo", [*TINY, "--out", str(out), "--stop-after", "2"]) == 0
     assert not json.loads((out / "summary.json").read_text())["finished"]
-    # Only --resume --out: everything else comes from the checkpoint; another chunk size changes nothing. (The stop
-    # at 2 holds no evaluation yet; a stop right after one is the driver's resume test, tests/training.)
+    return out
+
+
+def same_leaves(finished_run, out) -> bool:
+    """Whether the checkpoint in ``out`` holds the uninterrupted run's leaves, bit for bit."""
+    a = checkpoint.serialization.msgpack_restore((finished_run / "checkpoint.msgpack").read_bytes())["leaves"]
+    b = checkpoint.serialization.msgpack_restore((out / "checkpoint.msgpack").read_bytes())["leaves"]
+    return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
+def test_resume_continues_exactly(finished_run, stopped_run, tmp_path):
+    out = shutil.copytree(stopped_run, tmp_path / "split")
+    # Only --resume --out: everything else comes from the checkpoint; another chunk size changes nothing.
     assert cli_train.main("ppo", ["--resume", "--out", str(out), "--no-progress", "--chunk-updates", "7"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["finished"] and summary["updates_done"] == 7
-    a = checkpoint.serialization.msgpack_restore((finished_run / "checkpoint.msgpack").read_bytes())["leaves"]
-    b = checkpoint.serialization.msgpack_restore((out / "checkpoint.msgpack").read_bytes())["leaves"]
-    assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+    assert same_leaves(finished_run, out)
     assert (finished_run / "metrics.csv").read_text() == (out / "metrics.csv").read_text()
 
 
-def resumes_to_the_same_bits(finished_run, out, edit) -> bool:
-    """Train the tiny PPO run two updates into ``out``, let ``edit`` rewrite its checkpoint's metadata (as an older
-    version would have written it), resume it to the end: whether its leaves equal the uninterrupted run's."""
-    assert cli_train.main("ppo", [*TINY, "--out", str(out), "--stop-after", "2"]) == 0
+def resumes_to_the_same_bits(finished_run, stopped_run, out, edit) -> bool:
+    """Let ``edit`` rewrite the metadata of a copy of the stopped run's checkpoint (as an older version would have
+    written it), resume it to the end: whether its leaves equal the uninterrupted run's."""
+    shutil.copytree(stopped_run, out)
     path = out / "checkpoint.msgpack"
     payload = checkpoint.serialization.msgpack_restore(path.read_bytes())
     metadata = edit(json.loads(payload["metadata"]))
     path.write_bytes(checkpoint.serialization.msgpack_serialize({**payload, "metadata": json.dumps(metadata)}))
     assert cli_train.main("ppo", ["--resume", "--out", str(out), "--no-progress"]) == 0
-    a = checkpoint.serialization.msgpack_restore((finished_run / "checkpoint.msgpack").read_bytes())["leaves"]
-    b = checkpoint.serialization.msgpack_restore(path.read_bytes())["leaves"]
-    return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+    return same_leaves(finished_run, out)
 
 
-def test_a_run_saved_before_a_setting_existed_still_resumes(finished_run, tmp_path):
+def test_a_run_saved_before_a_setting_existed_still_resumes(finished_run, stopped_run, tmp_path):
     """A checkpoint whose config lacks a field (a setting added since it was written, at its default: the behaviour
     the run trained with) resumes as if the field had been saved, to the uninterrupted run's bits."""
-    from wrl_jax.agents.base import config_to_dict
     from wrl_jax.agents.ppo_config import PPOConfig
 
     defaults = config_to_dict(PPOConfig())
@@ -104,24 +127,22 @@ def test_a_run_saved_before_a_setting_existed_still_resumes(finished_run, tmp_pa
         del metadata["config"][added]
         return metadata
 
-    assert resumes_to_the_same_bits(finished_run, tmp_path / "older", drop_a_default_field)
+    assert resumes_to_the_same_bits(finished_run, stopped_run, tmp_path / "older", drop_a_default_field)
 
 
-def test_a_run_saved_under_a_retired_preset_name_still_resumes(finished_run, tmp_path):
+def test_a_run_saved_under_a_retired_preset_name_still_resumes(finished_run, stopped_run, tmp_path):
     """The preset a checkpoint records is a label (its config is saved whole): a run saved under a name that is no
     longer a preset (TD3's ``dynamic``, folded into its default) resumes to the uninterrupted run's bits."""
-    assert resumes_to_the_same_bits(finished_run, tmp_path / "retired", lambda metadata: {**metadata, "preset": "retired"})
+    assert resumes_to_the_same_bits(finished_run, stopped_run, tmp_path / "retired",
+                                    lambda metadata: {**metadata, "preset": "retired"})
 
 
-def test_evaluation_command_loads_the_checkpoint(finished_run, tmp_path):
-    result = tmp_path / "eval.json"
-    code = subprocess.run(
-        [sys.executable, "-m", "wrl_jax.evaluate", "--run", str(finished_run), "--json", str(result), "--items"],
-        cwd=REPO, capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
-    assert code.returncode == 0, code.stderr
-    assert "| Task Completion Rate |" in code.stdout and "| item |" in code.stdout
-    evaluated = json.loads(result.read_text())
+def test_evaluation_command_loads_the_checkpoint(finished_run, script_runs):
+    """``python -m wrl_jax.evaluate --run DIR`` (its ``__main__`` block, in a child of :func:`script_runs`)."""
+    code, stdout, stderr = script_runs["evaluate"]
+    assert code == 0, stderr
+    assert "| Task Completion Rate |" in stdout and "| item |" in stdout
+    evaluated = json.loads(script_runs["evaluate_json"].read_text())
     trained = json.loads((finished_run / "summary.json").read_text())["eval"]
     assert evaluated["rows"] == trained["rows"] and evaluated["success_rate"] == trained["success_rate"]
 
@@ -168,73 +189,8 @@ def test_config_round_trip_through_json():
         config_from_dict(ppo_config.PPOConfig, {**data, "bogus": 1})
 
 
-SCRIPT_HELP = """
-import contextlib, io, json, runpy, sys
-printed = {}
-for script in ("train_ppo.py", "train_dqn.py", "train_sac.py", "train_td3.py"):
-    sys.argv, out = [script, "--help"], io.StringIO()
-    with contextlib.redirect_stdout(out):
-        try:
-            runpy.run_path(script, run_name="__main__")
-        except SystemExit as exit:
-            printed[script] = (exit.code, out.getvalue())
-print(json.dumps(printed))
-"""
-
-
-def test_the_training_scripts_run_their_command():
-    """Each ``train_*.py`` as ``python train_*.py --help`` runs it (its ``__main__`` block: XLA flags, then the
-    command's parser), in one fresh interpreter for the four."""
-    done = subprocess.run([sys.executable, "-c", SCRIPT_HELP], cwd=REPO, capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, done.stderr
-    printed = json.loads(done.stdout.strip().splitlines()[-1])
-    assert set(printed) == {"train_ppo.py", "train_dqn.py", "train_sac.py", "train_td3.py"}
-    for script, (code, text) in printed.items():
-        assert code == 0, script
-        assert "host devices" not in text, script  # --help chooses no devices
-        for flag in ("--env", "--preset", "--num-seeds", "--total-timesteps", "--learning-rate", "--out", "--resume"):
-            assert flag in text, (script, flag)
-    assert "--critic" in printed["train_ppo.py"][1] and "--buffer-size" in printed["train_dqn.py"][1]
-
-
-SCRIPT_DEVICES = """
-import json, os, runpy, sys
-os.cpu_count = lambda: 2  # as on the 2-core machine the defaults were measured on
-import wrl_jax.cli.train as train
-calls = []
-train.main = lambda algo, argv=None: calls.append((algo, sys.argv[1:] if argv is None else argv)) or 0
-given = {}
-for script, flags in (("train_ppo.py", []), ("train_dqn.py", []), ("train_sac.py", []), ("train_td3.py", []),
-                      ("train_ppo.py", ["--env", "Procedural-Warehouse-v0"])):
-    sys.argv = [script, *flags]
-    os.environ.pop("XLA_FLAGS", None)
-    try:
-        runpy.run_path(script, run_name="__main__")
-    except SystemExit:
-        pass
-    given[" ".join([script, *flags])] = calls.pop()
-print(json.dumps(given))
-"""
-
-
-def test_the_training_scripts_choose_devices_for_their_own_algorithm():
-    """Run as a user runs them, with no flags on 2 cores: ``train_sac.py`` and ``train_td3.py`` hand their command
-    ``--devices 2`` on their default map, ``train_ppo.py`` only on the procedural warehouse, ``train_dqn.py`` never
-    (each script names its algorithm to :func:`~wrl_jax.cli.machine.apply_for_command`)."""
-    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "WRL_DISTRIBUTED")}
-    done = subprocess.run([sys.executable, "-c", SCRIPT_DEVICES], cwd=REPO, capture_output=True, text=True,
-                          timeout=120, env=env)
-    assert done.returncode == 0, done.stderr
-    given = json.loads(done.stdout.strip().splitlines()[-1])
-    assert given["train_sac.py"] == ["sac", ["--devices", "2"]]
-    assert given["train_td3.py"] == ["td3", ["--devices", "2"]]
-    assert given["train_ppo.py"] == ["ppo", []]
-    assert given["train_dqn.py"] == ["dqn", []]
-    assert given["train_ppo.py --env Procedural-Warehouse-v0"] == [
-        "ppo", ["--env", "Procedural-Warehouse-v0", "--devices", "2"]]
-
-
-@pytest.mark.parametrize("script, argv, expected", [
+SCRIPTS = ("train_ppo.py", "train_dqn.py", "train_sac.py", "train_td3.py")
+FLAG_CASES = [
     ("train_ppo.py", ["--xla-opt-level", "1"],
      ["--xla_backend_optimization_level=1", "--xla_cpu_use_fusion_emitters=false"]),
     ("train_dqn.py", ["--xla-opt-level", "1"],
@@ -245,28 +201,157 @@ def test_the_training_scripts_choose_devices_for_their_own_algorithm():
                                           "--xla_force_host_platform_device_count=4"]),
     ("train_dqn.py", ["--devices=2", "--xla-opt-level=-1"], ["--xla_force_host_platform_device_count=2"]),
     ("train_ppo.py", ["--devices", "0"], ["--xla_backend_optimization_level=1", "--xla_cpu_use_fusion_emitters=false"]),
-])
-def test_the_scripts_set_xla_flags_before_jax_starts(script, argv, expected):
+]
+DEVICE_CASES = [("train_ppo.py", []), ("train_dqn.py", []), ("train_sac.py", []), ("train_td3.py", []),
+                ("train_ppo.py", ["--env", "Procedural-Warehouse-v0"])]
+
+SCRIPT_CHECKS = '''
+import contextlib, io, json, os, runpy, sys
+sys.path.insert(0, ".")
+import ml_dtypes, numpy, wrl_jax, wrl_jax.cli.machine  # noqa: F401  (what every script loads before JAX; no JAX)
+assert "jax" not in sys.modules, "importing wrl_jax imported JAX"
+
+
+def in_child(body, *args):
+    """``body(*args)`` (JSON data) in a forked child: a process of its own that has not started JAX either."""
+    read, write = os.pipe()
+    pid = os.fork()
+    if pid == 0:
+        os.close(read)
+        try:
+            result = body(*args)
+        except BaseException as error:  # reported, not raised: the parent's other children still run
+            result = {"error": repr(error)}
+        with os.fdopen(write, "w") as pipe:
+            pipe.write(json.dumps(result))
+        os._exit(0)
+    os.close(write)
+    with os.fdopen(read) as pipe:
+        text = pipe.read()
+    os.waitpid(pid, 0)
+    return json.loads(text)
+
+
+class JaxImported(BaseException):
+    """Raised when JAX's backend module is first imported, with XLA_FLAGS as they are then."""
+
+
+def flags_at_jax_import(script, argv):
+    class Watch:
+        def find_spec(self, name, *args):
+            if name == "jax._src.xla_bridge":  # seen: report and stop (the rest would only cost seconds)
+                raise JaxImported(os.environ.get("XLA_FLAGS", ""))
+
+    sys.argv = [script, *argv, "--help"]
+    sys.meta_path.insert(0, Watch())
+    try:
+        runpy.run_path(script, run_name="__main__")
+    except JaxImported as seen:
+        return seen.args[0].split()
+    return {"error": "JAX was never imported"}
+
+
+def help_texts(scripts):
+    printed = {}
+    for script in scripts:
+        sys.argv, out = [script, "--help"], io.StringIO()
+        with contextlib.redirect_stdout(out):
+            try:
+                runpy.run_path(script, run_name="__main__")
+            except SystemExit as exit:
+                printed[script] = (exit.code, out.getvalue())
+    return printed
+
+
+def devices_given(cases):
+    os.cpu_count = lambda: 2  # as on the 2-core machine the defaults were measured on
+    import wrl_jax.cli.train as train
+
+    calls = []
+    train.main = lambda algo, argv=None: calls.append((algo, sys.argv[1:] if argv is None else argv)) or 0
+    given = {}
+    for script, flags in cases:
+        sys.argv = [script, *flags]
+        os.environ.pop("XLA_FLAGS", None)
+        try:
+            runpy.run_path(script, run_name="__main__")
+        except SystemExit:
+            pass
+        given[" ".join([script, *flags])] = calls.pop()
+    return given
+
+
+def module_output(module, argv, xla_flags):
+    """``python -m module *argv``'s exit code, standard output and error, with the test session's XLA_FLAGS."""
+    os.environ["XLA_FLAGS"] = xla_flags
+    sys.argv, out, err = [module, *argv], io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            runpy.run_module(module, run_name="__main__", alter_sys=True)
+            code = 0
+        except SystemExit as exit:
+            code = exit.code
+    return code, out.getvalue(), err.getvalue()
+
+
+flag_cases, scripts, device_cases, evaluate, xla_flags = json.loads(sys.argv[1])
+print(json.dumps({"flags": [in_child(flags_at_jax_import, script, argv) for script, argv in flag_cases],
+                  "help": in_child(help_texts, scripts), "devices": in_child(devices_given, device_cases),
+                  "evaluate": in_child(module_output, "wrl_jax.evaluate", evaluate, xla_flags)}))
+'''
+
+
+@pytest.fixture(scope="module")
+def script_runs(finished_run, tmp_path_factory):
+    """The training scripts and ``python -m wrl_jax.evaluate`` run as a user runs them, each command in a process
+    that has not started JAX: one interpreter loads what every script loads before JAX (NumPy, ml_dtypes,
+    ``wrl_jax``: more than a second of CPU) and forks a child per command, instead of a fresh interpreter each.
+    No ``XLA_FLAGS`` or ``WRL_DISTRIBUTED``: the training scripts choose their own; the evaluation gets the session's
+    flags (its programs from the session's cache) and writes its JSON to ``runs["evaluate_json"]``."""
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "WRL_DISTRIBUTED")}
+    evaluate_json = tmp_path_factory.mktemp("evaluate") / "eval.json"
+    evaluate = ["--run", str(finished_run), "--json", str(evaluate_json), "--items"]
+    cases = [[[script, argv] for script, argv, _ in FLAG_CASES], SCRIPTS, DEVICE_CASES, evaluate,
+             os.environ.get("XLA_FLAGS", "")]
+    done = subprocess.run([sys.executable, "-c", SCRIPT_CHECKS, json.dumps(cases)], cwd=REPO, capture_output=True,
+                          text=True, timeout=300, env=env)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return {**json.loads(done.stdout.strip().splitlines()[-1]), "evaluate_json": evaluate_json}
+
+
+def test_the_training_scripts_run_their_command(script_runs):
+    """Each ``train_*.py`` as ``python train_*.py --help`` runs it (its ``__main__`` block: XLA flags, then the
+    command's parser), in one process for the four."""
+    printed = script_runs["help"]
+    assert set(printed) == set(SCRIPTS), printed
+    for script, (code, text) in printed.items():
+        assert code == 0, script
+        assert "host devices" not in text, script  # --help chooses no devices
+        for flag in ("--env", "--preset", "--num-seeds", "--total-timesteps", "--learning-rate", "--out", "--resume"):
+            assert flag in text, (script, flag)
+    assert "--critic" in printed["train_ppo.py"][1] and "--buffer-size" in printed["train_dqn.py"][1]
+
+
+def test_the_training_scripts_choose_devices_for_their_own_algorithm(script_runs):
+    """Run as a user runs them, with no flags on 2 cores: ``train_sac.py`` and ``train_td3.py`` hand their command
+    ``--devices 2`` on their default map, ``train_ppo.py`` only on the procedural warehouse, ``train_dqn.py`` never
+    (each script names its algorithm to :func:`~wrl_jax.cli.machine.apply_for_command`)."""
+    given = script_runs["devices"]
+    assert given["train_sac.py"] == ["sac", ["--devices", "2"]], given
+    assert given["train_td3.py"] == ["td3", ["--devices", "2"]]
+    assert given["train_ppo.py"] == ["ppo", []]
+    assert given["train_dqn.py"] == ["dqn", []]
+    assert given["train_ppo.py --env Procedural-Warehouse-v0"] == [
+        "ppo", ["--env", "Procedural-Warehouse-v0", "--devices", "2"]]
+
+
+@pytest.mark.parametrize("case", range(len(FLAG_CASES)), ids=[f"{s}-{' '.join(a)}" for s, a, _ in FLAG_CASES])
+def test_the_scripts_set_xla_flags_before_jax_starts(case, script_runs):
     """XLA reads XLA_FLAGS once, when JAX starts, and importing an environment starts it: ``train_ppo.py`` must set the
     command's settings first (until 2026-12-02 it set them after, so they never took effect). ``--devices N``
     splits the CPU into N host devices there (``--devices 0``, all devices, adds nothing)."""
-    probe = (
-        "import os, runpy, sys\n"
-        f"sys.argv = {[script, *argv, '--help']!r}\n"
-        "class Watch:\n"  # prints XLA_FLAGS as they are when JAX's backend module is first imported
-        "    def find_spec(self, name, *args):\n"
-        "        if name == 'jax._src.xla_bridge':\n"  # seen: report and stop (the rest would only cost seconds)
-        "            print('FLAGS-AT-JAX-IMPORT', os.environ.get('XLA_FLAGS', ''), flush=True)\n"
-        "            os._exit(0)\n"
-        "sys.meta_path.insert(0, Watch())\n"
-        f"sys.path.insert(0, '.')\nrunpy.run_path('{script}', run_name='__main__')\n"
-        "print('JAX-NEVER-IMPORTED')\n"
-    )
-    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-    out = subprocess.run([sys.executable, "-c", probe], cwd=REPO, capture_output=True, text=True, timeout=120, env=env)
-    assert out.returncode == 0, out.stderr[-2000:]
-    flags = [line for line in out.stdout.splitlines() if line.startswith("FLAGS-AT-JAX-IMPORT")][0].split()[1:]
-    assert flags == expected
+    script, argv, expected = FLAG_CASES[case]
+    assert script_runs["flags"][case] == expected, (script, argv)
 
 
 def test_an_environment_may_bring_its_own_default_preset(tmp_path):

@@ -1,10 +1,10 @@
 """Training sharded over devices (wrl_jax.training.sharding) gives the unsharded results.
 
-XLA flags must be set before JAX initializes, so the checks run in a fresh
-Python process with ``XLA_FLAGS=--xla_force_host_platform_device_count=2``
-(two CPU devices), one process for all of them (a module fixture: JAX's start-up
-and the programs the checks share are paid once), which reports its comparisons
-as JSON; the tests below assert on them.
+XLA flags must be set before JAX initializes, so the checks run in a process of their own
+with ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` (two CPU devices), one
+process for all of them (JAX's start-up and the programs the checks share are paid
+once), which reports its comparisons as JSON; the tests below assert on them. That
+process and the command-line check's three are forked by one launcher (:data:`LAUNCHER`).
 
 What is compared, and why not everything bitwise: XLA on CPU may choose a
 different reduction kernel for a different batch shape, so a seed trained in a
@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import textwrap
@@ -38,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[2]
 TINY_UPDATES = 4  # updates of TINY_PPO below
 
 PRELUDE = """
-import json, os
+import copy, json, os
 import jax, numpy as np
 import wrl_jax
 from wrl_jax import training
@@ -78,8 +79,12 @@ out["param_spec"] = list(lay.sharding.spec)
 out["param_shard_rows"] = sorted(s.data.shape[0] for s in lay.addressable_shards)
 out["param_shard_devices"] = len({s.device for s in lay.addressable_shards})
 # One device: the unsharded Trainer (make_train_seeds' updates bit for bit, tests/training/test_training.py),
-# one program for both halves of 2 seeds; the first half is also the sweep's point below.
-halves = [training.run(training.Trainer(algo, part, EVAL_LOOP)) for part in ([0, 1], [2, 3])]
+# one program for both halves of 2 seeds: the second half is a copy of the first trainer with the other seeds, so its
+# jitted init and chunk are the first's, traced once. The first half is also the sweep's point below.
+first_half = training.Trainer(algo, [0, 1], EVAL_LOOP)
+second_half = copy.copy(first_half)
+second_half.seeds = [2, 3]
+halves = [training.run(half) for half in (first_half, second_half)]
 joined = [np.concatenate([a, b]) for a, b in zip(leaves(halves[0].runners), leaves(halves[1].runners))]
 out["seed_sharded_equals_halves_bitwise"] = bitwise(leaves(sharded.runners), joined)
 # Metric rows (one per update and seed, the in-loop evaluations' included): the halves' rows, every value.
@@ -152,32 +157,106 @@ evaluation every 2), so that its programs come from the session's compilation ca
 again."""
 
 
-def run_with_two_devices(*bodies: str) -> dict:
-    """Run the prelude, then ``bodies`` in one Python process with 2 CPU devices; their ``out`` as a dict."""
-    env = dict(os.environ)
-    # At the commands' LLVM level, not the session's 0: the bit-for-bit claims are about the programs as the commands
-    # compile them (tests/commands_level.py), and the --devices 2 command below loads these programs from the cache.
-    env["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2 " + commands_level.xla_flags_at(
-        commands_level.COMMANDS_LEVEL, os.environ.get("XLA_FLAGS", ""))
+LAUNCHER = """
+import json, os, runpy, socket, sys, traceback
+import ml_dtypes, numpy, wrl_jax  # noqa: F401  (what every run loads before JAX; wrl_jax imports no JAX)
+assert "jax" not in sys.modules, "importing wrl_jax imported JAX"
+
+
+def start(run):
+    \"\"\"Fork a process for one run: its environment (before it starts JAX), its output to its log, then its Python
+    source or script.\"\"\"
+    pid = os.fork()
+    if pid:
+        return pid
+    log = os.open(run["log"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
+    os.dup2(log, 1)
+    os.dup2(log, 2)
+    os.environ.clear()
+    os.environ.update(run["env"])
+    code = 0
+    try:
+        if "source" in run:
+            exec(compile(run["source"], "<two-device checks>", "exec"), {"__name__": "__main__"})
+        else:
+            sys.argv = run["argv"]
+            runpy.run_path(run["argv"][0], run_name="__main__")
+    except SystemExit as exit:
+        code = exit.code if isinstance(exit.code, int) else int(exit.code is not None)
+    except BaseException:
+        traceback.print_exc()
+        code = 1
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        return s.getsockname()[1]
+
+
+def run_stage(stage):  # the stage's runs at once, "{port}" in their environments a port free as it starts
+    port = str(free_port())
+    pids = [start({**run, "env": {k: v.replace("{port}", port) for k, v in run["env"].items()}}) for run in stage]
+    return [os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]) for pid in pids]
+
+
+print(json.dumps([run_stage(stage) for stage in json.loads(sys.argv[1])]))  # one stage after the other
+"""
+"""Runs the processes of the module's checks, stage after stage. It loads what each of them loads before JAX
+(NumPy, ml_dtypes, ``wrl_jax``: more than a second of CPU per process) once and forks a process per run, instead of
+starting four interpreters; each run still starts JAX in a process of its own, with its own ``XLA_FLAGS``."""
+
+
+def launch(stages: list[list[dict]]) -> list[list[int]]:
+    """Run :data:`LAUNCHER` on ``stages`` (runs: ``env``, ``log`` and ``source`` or ``argv``); the exit codes."""
+    proc = subprocess.Popen([sys.executable, "-c", LAUNCHER, json.dumps(stages)], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        out, err = proc.communicate(timeout=900)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)  # the launcher and every run it forked
+        raise
+    assert proc.returncode == 0, err[-4000:]
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def base_env() -> dict:
+    """The session's environment without its XLA flags, ``ROOT`` importable."""
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
-    source = textwrap.dedent(PRELUDE) + "".join(textwrap.dedent(b) for b in bodies)
-    proc = subprocess.run(
-        [sys.executable, "-c", source + '\nprint("RESULT" + json.dumps(out))\n'],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=900,
-        cwd=ROOT,
-    )
-    assert proc.returncode == 0, proc.stderr[-4000:]
-    line = [row for row in proc.stdout.splitlines() if row.startswith("RESULT")][-1]
-    return json.loads(line[len("RESULT") :])
+    return env
 
 
 @pytest.fixture(scope="module")
-def two_devices():
-    """Every in-process check, in one 2-device process."""
-    return run_with_two_devices(SEED_AXIS, SWEEP_AXIS, LAYOUT_ERRORS)
+def runs(tmp_path_factory):
+    """Every process of the module: first the in-process checks, in one 2-device process (their programs fill the
+    session's compilation cache), then the command-line check's three runs at once (the single process's programs
+    are the checks' seed-axis programs, from that cache). ``{"checks": (exit code, log), "cli": (exit codes, logs,
+    output folders)}``."""
+    folder = tmp_path_factory.mktemp("sharding")
+    checks = {"env": base_env(), "log": str(folder / "checks.log"),
+              "source": textwrap.dedent(PRELUDE) + "".join(textwrap.dedent(body) for body in (
+                  SEED_AXIS, SWEEP_AXIS, LAYOUT_ERRORS)) + '\nprint("RESULT" + json.dumps(out))\n'}
+    # At the commands' LLVM level, not the session's 0: the bit-for-bit claims are about the programs as the commands
+    # compile them (tests/commands_level.py), and the --devices 2 command loads these programs from the cache.
+    checks["env"]["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2 " + commands_level.xla_flags_at(
+        commands_level.COMMANDS_LEVEL, os.environ.get("XLA_FLAGS", ""))
+    (code,), cli_codes = launch([[checks], cli_runs(folder)])
+    names = ("host0", "host1", "single")
+    return {"checks": (code, Path(checks["log"]).read_text()),
+            "cli": (cli_codes, [(folder / f"{name}.log").read_text() for name in names], [folder / n for n in names])}
+
+
+@pytest.fixture(scope="module")
+def two_devices(runs):
+    """Every in-process check's results, from one 2-device process."""
+    code, log = runs["checks"]
+    assert code == 0, log[-4000:]
+    line = [row for row in log.splitlines() if row.startswith("RESULT")][-1]
+    return json.loads(line[len("RESULT"):])
 
 
 def test_seed_and_env_axes_sharded_match_one_device(two_devices):
@@ -224,14 +303,6 @@ def test_layout_errors_need_two_devices(two_devices):
     assert "num_envs=7 does not split evenly over env_shards=2" in out["errors"]["envs"]
 
 
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("localhost", 0))
-        return s.getsockname()[1]
-
-
 def _checkpoint_arrays(run_dir: Path) -> dict:
     from flax import serialization
 
@@ -244,35 +315,36 @@ def _checkpoint_arrays(run_dir: Path) -> dict:
     return {k: v for k, v in data.items() if hasattr(v, "shape")}
 
 
-def test_two_process_run_equals_one_process_with_two_devices(tmp_path):
-    """The CLI flags only: ``--distributed`` on 2 processes (1 CPU device each, Gloo collectives, the
-    multi-host launch of docs/scale.md on one machine) and ``--devices 2`` in one process, the three at once.
-    The single process gets no ``XLA_FLAGS``: ``train_ppo.py --devices 2`` splits the CPU into 2 host devices
-    before JAX starts (wrl_jax/cli/machine.py).
+def cli_runs(folder: Path) -> list[dict]:
+    """The command-line check's runs: ``--distributed`` on 2 processes (1 CPU device each, Gloo collectives, the
+    multi-host launch of docs/scale.md on one machine) and ``--devices 2`` in one process, the three at once, each
+    writing to ``folder / name`` and logging to ``folder / f"{name}.log"``. The single process gets no ``XLA_FLAGS``:
+    ``train_ppo.py --devices 2`` splits the CPU into 2 host devices before JAX starts (wrl_jax/cli/machine.py)."""
+    argv = [str(ROOT / "train_ppo.py"), *CLI_ARGS]
+    hosts = {**base_env(), "WRL_COORDINATOR": "localhost:{port}", "WRL_NUM_PROCESSES": "2"}  # a free port
+    runs = [{"env": {**hosts, "WRL_PROCESS_ID": str(pid)}, "argv": [*argv, "--distributed", "--out",
+                                                                    str(folder / f"host{pid}")]} for pid in range(2)]
+    runs.append({"env": base_env(), "argv": [*argv, "--devices", "2", "--out", str(folder / "single")]})
+    for run, name in zip(runs, ("host0", "host1", "single")):
+        run["log"] = str(folder / f"{name}.log")
+    return runs
 
-    The single-process run is a process of its own, not a call in the fixture's: run there, after the other
+
+def test_two_process_run_equals_one_process_with_two_devices(runs):
+    """Two ``--distributed`` processes and one ``--devices 2`` process (:func:`cli_runs`) write the same metrics and
+    checkpoint, bit for bit.
+
+    The single-process run is a process of its own, not a call in the checks' process: run there, after the other
     checks' programs, its floats differed from the hosts' in the last bits (seen 2026-12-02, not explained).
 
-    Compile time: the single process's programs are the fixture's seed-axis programs (``CLI_ARGS``), which the
+    Compile time: the single process's programs are the checks' seed-axis programs (``CLI_ARGS``), which the
     session's compilation cache serves. The hosts' 2-process programs are keyed apart and compiled by each host
     (``JAX_SHARE_BINARY_BETWEEN_HOSTS``, host 0 handing host 1 its executables, hangs in Gloo's set-up)."""
-    args = [sys.executable, str(ROOT / "train_ppo.py"), *CLI_ARGS]
-    base = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-    base["PYTHONPATH"] = str(ROOT) + os.pathsep + base.get("PYTHONPATH", "")
-    port = _free_port()
-    hosts = {**base, "WRL_COORDINATOR": f"localhost:{port}", "WRL_NUM_PROCESSES": "2"}
-    launches = [({**hosts, "WRL_PROCESS_ID": str(pid)}, ["--distributed", "--out", str(tmp_path / f"host{pid}")])
-                for pid in range(2)]
-    # No XLA_FLAGS device count for the single process: ``--devices 2`` itself splits the CPU in two.
-    launches.append((base, ["--devices", "2", "--out", str(tmp_path / "single")]))
-    processes = [subprocess.Popen(args + extra, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                  cwd=ROOT) for env, extra in launches]
-    logs = [p.communicate(timeout=600)[0] for p in processes]
-    assert [p.returncode for p in processes] == [0, 0, 0], "\n".join(log[-3000:] for log in logs)
+    codes, logs, dirs = runs["cli"]
+    assert codes == [0, 0, 0], "\n".join(log[-3000:] for log in logs)
     assert "2 cpu devices: seeds x2, envs x1 (2 process(es))" in logs[0]
     assert "2 cpu devices: seeds x2, envs x1 (1 process(es))" in logs[2]
     # Same metrics file, same checkpoint (gathered from both hosts), bit for bit.
-    dirs = [tmp_path / name for name in ("host0", "host1", "single")]
     metrics = [(d / "metrics.csv").read_bytes() for d in dirs]
     assert metrics[0] == metrics[1] == metrics[2]
     arrays = [_checkpoint_arrays(d) for d in dirs]

@@ -5,7 +5,10 @@ most tests, so the file compiles few programs. Programs whose results are compar
 compile at LLVM level 0 (``fast_compile``: the padding comparison, the evaluation, SAC's updates); the batched
 rollout and the slot's parity with the plain environment at the commands' level 1 (``commands_level``: the bounds and
 collision-free starts are exact at that level, where a start can lie within rounding of a shelf, and the slot's
-transition is the plain one's bit for bit); the others at the session's level.
+transition is the plain one's bit for bit); the others at the session's level. Those two are the tests' own programs
+(the environments traced into them), so ``commands_level.jit`` compiles them at level 1 in this process: the same
+programs, with the same bits, as in a pytest process at that level (compared 2026-12-07), without starting one (its
+start-up and its own pool took 6 s of CPU). The pool is layouts, integers and booleans: alike at every level.
 """
 
 from __future__ import annotations
@@ -68,7 +71,6 @@ def test_the_pool_holds_distinct_solvable_layouts_of_several_sizes(env_params):
         assert isinstance(slot_layout(params.pool, k), Layout)
 
 
-@commands_level.at_commands_level  # a claim about level-1 programs (tests/commands_level.py)
 def test_batched_rollouts_draw_layouts_by_key_and_start_collision_free(env_params):
     """256 environments under jit and vmap for 60 steps (past the 40-step limit): resets draw a layout per
     key (the same for the same key), every fresh episode is collision-free at its start, and auto-resets
@@ -101,7 +103,7 @@ def test_batched_rollouts_draw_layouts_by_key_and_start_collision_free(env_param
         _, trace = jax.lax.scan(body, state, jax.random.split(run_key, STEPS))
         return obs, state, goals, jnp.all(jax.vmap(clear)(state)), trace
 
-    program = jax.jit(rollout)
+    program = commands_level.jit(rollout)  # a claim about a level-1 program (tests/commands_level.py)
     obs0, state0, goals, start_ok, (slots, obs_ok, done, collision, fresh_ok) = program(jax.random.key(1))
     again = program(jax.random.key(1))
     assert all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(jax.tree.leaves((obs0, state0, slots)),
@@ -118,7 +120,6 @@ def test_batched_rollouts_draw_layouts_by_key_and_start_collision_free(env_param
 
 
 # ------------------------------------------------------------------ parity with the plain environment
-@commands_level.at_commands_level  # a claim about level-1 programs (tests/commands_level.py)
 def test_a_transition_on_slot_k_is_the_plain_env_on_layout_k(env_params):
     """Same key, same state, same action: the plain environment built from the slot's layout (padding as
     shelves) gives the same observation (the target's features included), state, reward, flags and info,
@@ -145,7 +146,8 @@ def test_a_transition_on_slot_k_is_the_plain_env_on_layout_k(env_params):
         _, (a, b) = jax.lax.scan(body, (ours[1], theirs[1]), jax.random.split(run_key, STEPS))
         return ours, theirs, a, b
 
-    ours, theirs, a, b = jax.jit(jax.vmap(run))(jax.random.split(jax.random.key(slot), 8))
+    # A claim about a level-1 program (tests/commands_level.py): both environments' steps compiled in one.
+    ours, theirs, a, b = commands_level.jit(jax.vmap(run))(jax.random.split(jax.random.key(slot), 8))
     assert (np.asarray(ours[1].layout_index) == slot).all() and (np.asarray(a[1].layout_index) == slot).all()
     for mine, other in ((ours, theirs), (a, b)):
         mine_obs, mine_state, *rest = mine

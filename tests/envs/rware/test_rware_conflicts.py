@@ -8,7 +8,7 @@ networkx for ``tie_order="set"`` (its node order is CPython's hash-set order in 
 the insertion-ordered copy for ``tie_order="insertion"``.
 
 Programs: one per grid, tie order and agent count (:func:`resolver`, cached, compiled at LLVM level 0 by
-``fast_compile``); ``test_unrolled_rotation``'s 4 agents on the 3 x 3 grid reuse the crowds' programs of that size.
+``fast_compile``); ``test_unrolled_rotation``'s cases reuse the crowds' programs.
 """
 
 from __future__ import annotations
@@ -103,8 +103,10 @@ CROWDS = [
 
 @pytest.mark.parametrize("side, agents, kinds, tie_order",
                          [(*crowd_, "set") for crowd_ in CROWDS]
-                         # insertion order: one array-form and two unrolled sizes (each size is its own program)
-                         + [(*crowd_, "insertion") for crowd_ in CROWDS if crowd_[1] in (3, 4, 12)])
+                         # insertion order (each size its own program): one array-form crowd, and 3 and 4 agents
+                         # unrolled; not the 4 filling the 2 x 2 grid: every cell taken, each component holds a
+                         # cycle, no chain ends in an empty cell, so no tie for the orders to part
+                         + [(*crowd_, "insertion") for crowd_ in CROWDS if crowd_[:2] in ((4, 12), (2, 3), (3, 4))])
 def test_resolve_matches_networkx(side, agents, kinds, tie_order):
     rng = np.random.default_rng(side * 100 + agents)
     starts, targets = crowd(rng, side, agents, CASES)
@@ -123,16 +125,23 @@ def test_resolve_matches_networkx(side, agents, kinds, tie_order):
 
 @pytest.mark.parametrize("tie_order", ["set", "insertion"])
 def test_unrolled_rotation(tie_order):
-    """Four agents rotating around a 2x2 block all move; one more queued behind the cycle (array form) waits."""
+    """Four agents rotating around a 2x2 block all move; one more queued behind the cycle (array form) waits.
+
+    Each case repeated to the crowds' batch, so both reuse programs of test_resolve_matches_networkx: the four
+    on the 3 x 3 grid (``[3-4-...]``), and the queued five on the 4 x 4 grid beside seven agents that stay
+    (``[4-12-...]``, the size both tie orders run)."""
     side = 3
     cycle_starts, cycle_targets = [0, 1, 4, 3], [1, 4, 3, 0]  # (0,0) -> (1,0) -> (1,1) -> (0,1) -> (0,0)
-    # (the case repeated to the crowds' batch: test_resolve_matches_networkx[3-4-...]'s program)
     batch = np.array([cycle_starts] * CASES), np.array([cycle_targets] * CASES)
     ours = np.asarray(resolver(side, tie_order)(*batch))[0]
     assert ours.tolist() == [True] * 4 == reference(cycle_starts, cycle_targets, side, tie_order)[0]
-    starts, targets = [*cycle_starts, 6], [*cycle_targets, 3]  # (0,2) drives into the cycle's (0,1)
-    ours = np.asarray(resolver(side, tie_order)(np.array([starts]), np.array([targets])))[0]
-    assert ours.tolist() == [True] * 4 + [False] == reference(starts, targets, side, tie_order)[0]
+    side = 4  # the same cycle, cells y * 4 + x, and (0,2) driving into the cycle's (0,1)
+    starts, targets = [0, 1, 5, 4, 8], [1, 5, 4, 0, 4]
+    stay = [3, 7, 10, 11, 13, 14, 15]  # seven agents away from the cycle, each on its own cell
+    starts, targets = starts + stay, targets + stay
+    batch = np.array([starts] * CASES), np.array([targets] * CASES)
+    ours = np.asarray(resolver(side, tie_order)(*batch))[0]
+    assert ours.tolist() == [True] * 4 + [False] + [True] * 7 == reference(starts, targets, side, tie_order)[0]
 
 
 @pytest.mark.parametrize("height, side, agents", [(4, 4, 4), (3, 5, 4), (7, 4, 8)])
