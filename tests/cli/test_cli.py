@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import commands_level
 
 from wrl_jax.training import checkpoint
 from wrl_jax.training import metrics_io
@@ -23,7 +22,6 @@ from wrl_jax.agents.base import config_from_dict, config_to_dict
 from wrl_jax.cli import options as cli_options
 from wrl_jax.cli import train as cli_train
 from wrl_jax.cli.options import build
-from wrl_jax.envs.continuous import geodesic
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = [
@@ -37,15 +35,7 @@ SUMMARY_FIELDS = {
 EVAL_FIELDS = {"success_rate", "mean_steps", "optimal_mean_steps", "collision_free_rate", "mean_return", "rows"}
 
 
-@pytest.fixture(scope="module", autouse=True)
-def geodesic_fields_at_the_commands_level():
-    """The continuous maps' geodesic fields (the package's Bellman-Ford loop, hundreds of sweeps, run once per layout
-    and remembered) compiled at the commands' LLVM level: the session's level 0 runs that loop five times slower
-    (3.5 s of CPU for the 12x12 map with moving obstacles, against 0.6 s), and its adds and minimums round alike at
-    every level (the three maps' params compared bit for bit, 2026-12-06)."""
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(geodesic, "_relax", commands_level.jit(geodesic._relax.__wrapped__, static_argnums=3))
-        yield
+pytestmark = pytest.mark.usefixtures("geodesic_fields_at_the_commands_level")  # tests/conftest.py
 
 
 @pytest.fixture(scope="module")

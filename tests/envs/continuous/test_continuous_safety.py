@@ -16,23 +16,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import commands_level
 
-from wrl_jax.envs.continuous import geodesic
 from wrl_jax.envs.continuous.registration import make_continuous
 from wrl_jax.envs.continuous.safety import SAFETY_MARGIN, safety_stop
 from wrl_jax.envs.warehouse.maps import WAREHOUSE_12X12
 
 
-@pytest.fixture(scope="module", autouse=True)
-def geodesic_fields_at_the_commands_level():
-    """The maps' geodesic fields (the package's Bellman-Ford loop, hundreds of sweeps, run once per layout and
-    remembered) compiled at the commands' LLVM level: the session's level 0 runs that loop five times slower (3.6 s of
-    CPU for the 12x12 map, against 0.8 s), and its adds and minimums round alike at every level (the 8x8 and 12x12
-    maps' fields compared bit for bit at levels 0, 1 and 2)."""
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(geodesic, "_relax", commands_level.jit(geodesic._relax.__wrapped__, static_argnums=3))
-        yield
+pytestmark = pytest.mark.usefixtures("geodesic_fields_at_the_commands_level")  # tests/conftest.py
 
 
 @pytest.fixture(scope="module")
