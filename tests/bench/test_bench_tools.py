@@ -16,6 +16,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import forked
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -30,52 +31,17 @@ TOOL_RUNS = {
 }
 """The command lines run as a user runs them: each splits the CPU into host devices before it starts JAX."""
 
-LAUNCHER = """
-import json, os, runpy, sys, traceback
-import ml_dtypes, numpy  # noqa: F401  (what both tools load before JAX; loaded once, then a process per tool)
-assert "jax" not in sys.modules
-
-
-def run(argv, out, err):  # in a forked child: ``python *argv`` with its output to the files out and err
-    os.dup2(os.open(out, os.O_WRONLY | os.O_CREAT | os.O_TRUNC), 1)
-    os.dup2(os.open(err, os.O_WRONLY | os.O_CREAT | os.O_TRUNC), 2)
-    sys.argv, sys.path[0] = argv, os.path.dirname(os.path.abspath(argv[0]))
-    code = 0
-    try:
-        runpy.run_path(argv[0], run_name="__main__")
-    except SystemExit as exit:
-        code = exit.code if isinstance(exit.code, int) else int(exit.code is not None)
-    except BaseException:
-        traceback.print_exc()
-        code = 1
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)
-
-
-pids = []
-for argv, out, err in json.loads(sys.argv[1]):
-    pid = os.fork()
-    if pid == 0:
-        run(argv, out, err)
-    pids.append(pid)
-print(json.dumps([os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]) for pid in pids]))
-"""
-"""Runs :data:`TOOL_RUNS` at once, each in a process of its own forked by one interpreter that loaded NumPy and
-ml_dtypes (more than a second of CPU per process) for both, instead of two fresh interpreters."""
-
-
 @pytest.fixture(scope="module")
 def tool_runs(tmp_path_factory):
-    """``{name: CompletedProcess}`` of :data:`TOOL_RUNS`."""
+    """``{name: CompletedProcess}`` of :data:`TOOL_RUNS`, run at once, each in a process forked by one interpreter
+    that loaded what both load before JAX (:mod:`forked`)."""
     folder = tmp_path_factory.mktemp("tools")
-    runs = [(argv, str(folder / f"{name}.out"), str(folder / f"{name}.err")) for name, argv in TOOL_RUNS.items()]
-    done = subprocess.run([sys.executable, "-c", LAUNCHER, json.dumps(runs)], cwd=ROOT, capture_output=True,
-                          text=True, timeout=300)
-    assert done.returncode == 0, done.stderr[-3000:]
-    codes = json.loads(done.stdout.strip().splitlines()[-1])
-    return {name: subprocess.CompletedProcess(argv, code, Path(out).read_text(), Path(err).read_text())
-            for (name, argv), code, (_, out, err) in zip(TOOL_RUNS.items(), codes, runs)}
+    runs = {name: {"argv": argv, "out": str(folder / f"{name}.out"), "err": str(folder / f"{name}.err")}
+            for name, argv in TOOL_RUNS.items()}
+    (codes,) = forked.launch([list(runs.values())], timeout=300)
+    return {name: subprocess.CompletedProcess(run["argv"], code, Path(run["out"]).read_text(),
+                                              Path(run["err"]).read_text())
+            for (name, run), code in zip(runs.items(), codes)}
 
 
 def test_step_profile_splits_over_devices_and_times_a_baseline(tool_runs):

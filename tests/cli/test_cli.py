@@ -197,29 +197,10 @@ DEVICE_CASES = [("train_ppo.py", []), ("train_dqn.py", []), ("train_sac.py", [])
 
 SCRIPT_CHECKS = '''
 import contextlib, io, json, os, runpy, sys
-sys.path.insert(0, ".")
+sys.path[:0] = [".", "tests"]
 import ml_dtypes, numpy, wrl_jax, wrl_jax.cli.machine  # noqa: F401  (what every script loads before JAX; no JAX)
+from forked import in_child  # a function in a forked child, its JSON result through a pipe
 assert "jax" not in sys.modules, "importing wrl_jax imported JAX"
-
-
-def in_child(body, *args):
-    """``body(*args)`` (JSON data) in a forked child: a process of its own that has not started JAX either."""
-    read, write = os.pipe()
-    pid = os.fork()
-    if pid == 0:
-        os.close(read)
-        try:
-            result = body(*args)
-        except BaseException as error:  # reported, not raised: the parent's other children still run
-            result = {"error": repr(error)}
-        with os.fdopen(write, "w") as pipe:
-            pipe.write(json.dumps(result))
-        os._exit(0)
-    os.close(write)
-    with os.fdopen(read) as pipe:
-        text = pipe.read()
-    os.waitpid(pid, 0)
-    return json.loads(text)
 
 
 class JaxImported(BaseException):

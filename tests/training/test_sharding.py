@@ -4,7 +4,7 @@ XLA flags must be set before JAX initializes, so the checks run in a process of 
 with ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` (two CPU devices), one
 process for all of them (JAX's start-up and the programs the checks share are paid
 once), which reports its comparisons as JSON; the tests below assert on them. That
-process and the command-line check's three are forked by one launcher (:data:`LAUNCHER`).
+process and the command-line check's three are forked by one launcher (``tests/forked.py``).
 
 What is compared, and why not everything bitwise: XLA on CPU may choose a
 different reduction kernel for a different batch shape, so a seed trained in a
@@ -23,15 +23,13 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import subprocess
-import sys
 import textwrap
 from pathlib import Path
 
 import numpy as np
 import pytest
 import commands_level
+import forked
 
 from wrl_jax.training import sharding
 
@@ -157,72 +155,6 @@ evaluation every 2), so that its programs come from the session's compilation ca
 again."""
 
 
-LAUNCHER = """
-import json, os, runpy, socket, sys, traceback
-import ml_dtypes, numpy, wrl_jax  # noqa: F401  (what every run loads before JAX; wrl_jax imports no JAX)
-assert "jax" not in sys.modules, "importing wrl_jax imported JAX"
-
-
-def start(run):
-    \"\"\"Fork a process for one run: its environment (before it starts JAX), its output to its log, then its Python
-    source or script.\"\"\"
-    pid = os.fork()
-    if pid:
-        return pid
-    log = os.open(run["log"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
-    os.dup2(log, 1)
-    os.dup2(log, 2)
-    os.environ.clear()
-    os.environ.update(run["env"])
-    code = 0
-    try:
-        if "source" in run:
-            exec(compile(run["source"], "<two-device checks>", "exec"), {"__name__": "__main__"})
-        else:
-            sys.argv = run["argv"]
-            runpy.run_path(run["argv"][0], run_name="__main__")
-    except SystemExit as exit:
-        code = exit.code if isinstance(exit.code, int) else int(exit.code is not None)
-    except BaseException:
-        traceback.print_exc()
-        code = 1
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)
-
-
-def free_port():
-    with socket.socket() as s:
-        s.bind(("localhost", 0))
-        return s.getsockname()[1]
-
-
-def run_stage(stage):  # the stage's runs at once, "{port}" in their environments a port free as it starts
-    port = str(free_port())
-    pids = [start({**run, "env": {k: v.replace("{port}", port) for k, v in run["env"].items()}}) for run in stage]
-    return [os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]) for pid in pids]
-
-
-print(json.dumps([run_stage(stage) for stage in json.loads(sys.argv[1])]))  # one stage after the other
-"""
-"""Runs the processes of the module's checks, stage after stage. It loads what each of them loads before JAX
-(NumPy, ml_dtypes, ``wrl_jax``: more than a second of CPU per process) once and forks a process per run, instead of
-starting four interpreters; each run still starts JAX in a process of its own, with its own ``XLA_FLAGS``."""
-
-
-def launch(stages: list[list[dict]]) -> list[list[int]]:
-    """Run :data:`LAUNCHER` on ``stages`` (runs: ``env``, ``log`` and ``source`` or ``argv``); the exit codes."""
-    proc = subprocess.Popen([sys.executable, "-c", LAUNCHER, json.dumps(stages)], cwd=ROOT, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
-    try:
-        out, err = proc.communicate(timeout=900)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)  # the launcher and every run it forked
-        raise
-    assert proc.returncode == 0, err[-4000:]
-    return json.loads(out.strip().splitlines()[-1])
-
-
 def base_env() -> dict:
     """The session's environment without its XLA flags, ``ROOT`` importable."""
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
@@ -237,16 +169,17 @@ def runs(tmp_path_factory):
     are the checks' seed-axis programs, from that cache). ``{"checks": (exit code, log), "cli": (exit codes, logs,
     output folders)}``."""
     folder = tmp_path_factory.mktemp("sharding")
-    checks = {"env": base_env(), "log": str(folder / "checks.log"),
+    log = str(folder / "checks.log")
+    checks = {"env": base_env(), "out": log, "err": log,
               "source": textwrap.dedent(PRELUDE) + "".join(textwrap.dedent(body) for body in (
                   SEED_AXIS, SWEEP_AXIS, LAYOUT_ERRORS)) + '\nprint("RESULT" + json.dumps(out))\n'}
     # At the commands' LLVM level, not the session's 0: the bit-for-bit claims are about the programs as the commands
     # compile them (tests/commands_level.py), and the --devices 2 command loads these programs from the cache.
     checks["env"]["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2 " + commands_level.xla_flags_at(
         commands_level.COMMANDS_LEVEL, os.environ.get("XLA_FLAGS", ""))
-    (code,), cli_codes = launch([[checks], cli_runs(folder)])
+    (code,), cli_codes = forked.launch([[checks], cli_runs(folder)])
     names = ("host0", "host1", "single")
-    return {"checks": (code, Path(checks["log"]).read_text()),
+    return {"checks": (code, Path(log).read_text()),
             "cli": (cli_codes, [(folder / f"{name}.log").read_text() for name in names], [folder / n for n in names])}
 
 
@@ -326,7 +259,7 @@ def cli_runs(folder: Path) -> list[dict]:
                                                                     str(folder / f"host{pid}")]} for pid in range(2)]
     runs.append({"env": base_env(), "argv": [*argv, "--devices", "2", "--out", str(folder / "single")]})
     for run, name in zip(runs, ("host0", "host1", "single")):
-        run["log"] = str(folder / f"{name}.log")
+        run["out"] = run["err"] = str(folder / f"{name}.log")
     return runs
 
 
