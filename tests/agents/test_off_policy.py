@@ -214,12 +214,30 @@ def test_squashed_gaussian_density_counts_tanh_and_the_box(corridor):
     (TD3Config, {"anneal_lr": 1}, "anneal_lr must be True or False"),
     (SACConfig, {"anneal_from": 0.5}, "needs anneal_lr=True"),
     (SACConfig, {"actor_average": 1.5}, "actor_average must be in \\[0, 1\\]"),
+    (SACConfig, {"action_margin": 1.0}, "action_margin must be in \\[0, 1\\)"),
+    (TD3Config, {"greedy_target": 1}, "greedy_target must be True or False"),
 ])
 def test_bad_settings_are_refused_before_compiling(corridor, config_cls, changes, message):
     env, params = corridor
     algo_cls = SAC if config_cls is SACConfig else TD3
     with pytest.raises(ValueError, match=message):
         algo_cls(dataclasses.replace(tiny(config_cls), **changes), env, params)
+
+
+def test_the_action_margin_widens_the_box_and_the_environment_clips_it_back(corridor):
+    """With ``action_margin`` m the unit box maps onto the environment's box widened by m, SAC's density counts the
+    wider map (log pi lower by A log(1 + m)), and the environment clips the command back: a saturated actor drives
+    as the box's bound does."""
+    env, params = corridor
+    plain, wide = (SAC(tiny(SACConfig, action_margin=m), env, params) for m in (0.0, 0.05))
+    unit = jnp.array([[1.0, -1.0], [0.5, 0.0], [0.96, -0.97]])
+    np.testing.assert_allclose(wide.to_env(unit), 1.05 * np.asarray(plain.to_env(unit)), rtol=1e-6)
+    assert wide.log_action_scale == pytest.approx(plain.log_action_scale + 2 * math.log(1.05))
+    _, state = env.reset(jax.random.key(0), params)
+    step = jax.jit(jax.vmap(env.step, in_axes=(None, None, 0, None)))
+    _, after, *_ = step(jax.random.key(1), state, jnp.concatenate([wide.to_env(unit[:1]), unit[:1]]), params)
+    for leaf in jax.tree.leaves(after):
+        np.testing.assert_array_equal(leaf[0], leaf[1])
 
 
 def test_annealed_learning_rate_is_constant_then_falls_towards_zero_at_the_last_step(corridor):
@@ -283,6 +301,23 @@ def test_the_actor_average_is_the_greedy_policy_and_leaves_training_alone(stepwi
     gaps = [np.abs(np.asarray(a) - np.asarray(b)).max()
             for a, b in zip(jax.tree.leaves(runs["sac_average"][1]), jax.tree.leaves(averaged.actor), strict=True)]
     assert max(gaps) > 1e-3, max(gaps)  # the average lags the actor (measured: 3e-3)
+
+
+def test_td3_greedy_target_evaluates_the_target_actor_and_trains_alike(stepwise):
+    """``greedy_target``: the greedy parameters are the target actor, which lags the actor; the update is the same
+    program (its jaxpr, traced, not compiled)."""
+    algo, init, update = stepwise("td3")
+    runner = init(jax.random.key(0))
+    for index in range(5):
+        runner, _ = update(runner, jnp.int32(index))
+    target = TD3(dataclasses.replace(algo.config, greedy_target=True), algo.env, algo.env_params)
+    assert not algo.averages_actor and target.averages_actor
+    assert algo.network_params(runner) is runner.actor and target.network_params(runner) is runner.actor_target
+    gaps = [np.abs(np.asarray(a) - np.asarray(b)).max()
+            for a, b in zip(jax.tree.leaves(runner.actor_target), jax.tree.leaves(runner.actor), strict=True)]
+    assert max(gaps) > 1e-4, max(gaps)
+    trace = lambda a: str(jax.make_jaxpr(a.update)(runner, jnp.int32(5)))  # noqa: E731
+    assert trace(target) == trace(algo)
 
 
 @pytest.mark.parametrize("name", ["sac", "td3"])

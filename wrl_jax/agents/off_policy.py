@@ -100,7 +100,8 @@ class OffPolicyActorCritic(Algorithm[OffPolicyRunner]):
 
     @property
     def averages_actor(self) -> bool:
-        """Whether ``actor_target`` holds an average of the actor that is evaluated instead of it (SAC's option)."""
+        """Whether the greedy policy is ``actor_target``, an average of the actor (SAC's ``actor_average``, TD3's
+        ``greedy_target``), instead of the actor as trained."""
         return False
 
     def __init__(self, config: OffPolicyConfig, env: Environment, env_params: Any):
@@ -117,7 +118,7 @@ class OffPolicyActorCritic(Algorithm[OffPolicyRunner]):
         if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(high > low)):
             raise ValueError(f"{env.name}'s action box must be finite with high > low, got [{low}, {high}]")
         self.action_size = int(space.shape[0])
-        self.action_scale = (high - low) / 2
+        self.action_scale = (high - low) / 2 * (1.0 + config.action_margin)  # widened: the env clips it back
         self.action_centre = (high + low) / 2
         self.log_action_scale = float(np.log(self.action_scale).sum())  # log|det| of the map onto the box
         self.obs_size = observation_size(env)
@@ -134,7 +135,8 @@ class OffPolicyActorCritic(Algorithm[OffPolicyRunner]):
         return self.config.steps_per_update
 
     def network_params(self, runner: OffPolicyRunner) -> Any:
-        return runner.actor
+        """The greedy policy's parameters: the actor, or its average (:attr:`averages_actor`)."""
+        return runner.actor_target if self.averages_actor else runner.actor
 
     def greedy_action(self, network_params: Any, obs: jax.Array) -> jax.Array:
         return self.to_env(self.deterministic_unit_action(network_params, obs))

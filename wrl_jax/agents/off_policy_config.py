@@ -72,6 +72,10 @@ class OffPolicyConfig:
             temperature's), as PPO's ``anneal_lr`` does: the last policy then moves less between snapshots.
         anneal_from: the fraction of the run's updates (counted from the first, warm-up included) after which
             the decay starts (0: from the first); needs ``anneal_lr``.
+        action_margin: the actor's unit box is mapped onto the environment's box widened by this fraction,
+            which the environment clips back (0: no widening). Why: a tanh output reaches its bound only at
+            infinity, so full speed would cost SAC's policy entropy; with a margin it is reached at a finite
+            pre-activation.
 
     Traced:
         learning_rate: Adam step size of every network (and of SAC's temperature); the starting one under
@@ -98,6 +102,7 @@ class OffPolicyConfig:
     adam_eps: float = 1e-8
     anneal_lr: bool = False
     anneal_from: float = 0.0
+    action_margin: float = 0.0
     # traced
     learning_rate: float = 3e-4
     gamma: float = 0.99
@@ -157,6 +162,9 @@ class OffPolicyConfig:
         if start and not self.anneal_lr:
             raise ValueError(f"{owner}.anneal_from={start!r} needs anneal_lr=True (--anneal-lr): without it the step "
                              f"size is constant")
+        margin = self.action_margin
+        if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0.0 <= margin < 1.0:
+            raise ValueError(f"{owner}.action_margin must be in [0, 1) (0: the environment's box), got {margin!r}")
         rho = self.noise_correlation
         if isinstance(rho, bool) or not isinstance(rho, (int, float)) or not 0.0 <= rho < 1.0:
             raise ValueError(f"{owner}.noise_correlation must be in [0, 1), got {rho!r}")
@@ -211,6 +219,10 @@ class TD3Config(OffPolicyConfig):
             actor's loss (0: none, the term left out of the program; the logged ``actor_loss`` includes it).
             Why: an actor pushed deep into the squash gets no gradient through it (1 - tanh^2 is nearly 0) and
             can stay there, commanding the same action in every state.
+        greedy_target: the greedy policy (evaluated, and saved as greedy) is the target actor, the Polyak average
+            of the actor (``tau`` per actor update) that TD3 keeps for its targets, not the actor as trained.
+            Why: one late actor update can leave a snapshot that stops at a shelf; the average moves slowly.
+            Training is unchanged.
 
     Traced:
         policy_noise: standard deviation of the target policy's smoothing noise.
@@ -226,6 +238,7 @@ class TD3Config(OffPolicyConfig):
     noise_clip: float = 0.5
     exploration_noise: float = 0.1
     preactivation_penalty: float = 0.0
+    greedy_target: bool = False
 
     def extra_positive_ints(self) -> tuple[str, ...]:
         return ("policy_delay",)
@@ -235,6 +248,8 @@ class TD3Config(OffPolicyConfig):
         penalty = self.preactivation_penalty
         if isinstance(penalty, bool) or not isinstance(penalty, (int, float)) or not 0.0 <= penalty < float("inf"):
             raise ValueError(f"{self.owner}.preactivation_penalty must be a finite number >= 0, got {penalty!r}")
+        if not isinstance(self.greedy_target, bool):
+            raise ValueError(f"{self.owner}.greedy_target must be True or False, got {self.greedy_target!r}")
 
 
 SB3_SAC = SACConfig(

@@ -96,10 +96,6 @@ class SAC(OffPolicyActorCritic):
     def averages_actor(self) -> bool:
         return self.config.actor_average > 0
 
-    def network_params(self, runner: OffPolicyRunner) -> Any:
-        """The greedy policy's parameters: the actor, or its average (``actor_average``)."""
-        return runner.actor_target if self.averages_actor else runner.actor
-
     def gradient_step(self, runner: OffPolicyRunner, key: jax.Array, index: jax.Array) -> tuple[OffPolicyRunner, Metrics]:
         hyper: SACHyper = runner.hyper
         learning_rate = self.learning_rate(hyper, index)

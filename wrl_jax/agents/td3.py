@@ -37,6 +37,10 @@ class TD3(OffPolicyActorCritic):
     def actor_output_size(self) -> int:
         return self.action_size
 
+    @property
+    def averages_actor(self) -> bool:
+        return self.config.greedy_target
+
     def initial_log_alpha(self, hyper: TD3Hyper) -> jax.Array:
         return jnp.zeros((), jnp.float32)
 
