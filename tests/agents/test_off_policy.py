@@ -214,7 +214,6 @@ def test_squashed_gaussian_density_counts_tanh_and_the_box(corridor):
     (TD3Config, {"anneal_lr": 1}, "anneal_lr must be True or False"),
     (SACConfig, {"anneal_from": 0.5}, "needs anneal_lr=True"),
     (SACConfig, {"actor_average": 1.5}, "actor_average must be in \\[0, 1\\]"),
-    (SACConfig, {"action_margin": 1.0}, "action_margin must be in \\[0, 1\\)"),
     (TD3Config, {"greedy_target": 1}, "greedy_target must be True or False"),
 ])
 def test_bad_settings_are_refused_before_compiling(corridor, config_cls, changes, message):
@@ -222,22 +221,6 @@ def test_bad_settings_are_refused_before_compiling(corridor, config_cls, changes
     algo_cls = SAC if config_cls is SACConfig else TD3
     with pytest.raises(ValueError, match=message):
         algo_cls(dataclasses.replace(tiny(config_cls), **changes), env, params)
-
-
-def test_the_action_margin_widens_the_box_and_the_environment_clips_it_back(corridor):
-    """With ``action_margin`` m the unit box maps onto the environment's box widened by m, SAC's density counts the
-    wider map (log pi lower by A log(1 + m)), and the environment clips the command back: a saturated actor drives
-    as the box's bound does."""
-    env, params = corridor
-    plain, wide = (SAC(tiny(SACConfig, action_margin=m), env, params) for m in (0.0, 0.05))
-    unit = jnp.array([[1.0, -1.0], [0.5, 0.0], [0.96, -0.97]])
-    np.testing.assert_allclose(wide.to_env(unit), 1.05 * np.asarray(plain.to_env(unit)), rtol=1e-6)
-    assert wide.log_action_scale == pytest.approx(plain.log_action_scale + 2 * math.log(1.05))
-    _, state = env.reset(jax.random.key(0), params)
-    step = jax.jit(jax.vmap(env.step, in_axes=(None, None, 0, None)))
-    _, after, *_ = step(jax.random.key(1), state, jnp.concatenate([wide.to_env(unit[:1]), unit[:1]]), params)
-    for leaf in jax.tree.leaves(after):
-        np.testing.assert_array_equal(leaf[0], leaf[1])
 
 
 def test_annealed_learning_rate_is_constant_then_falls_towards_zero_at_the_last_step(corridor):

@@ -118,7 +118,7 @@ class OffPolicyActorCritic(Algorithm[OffPolicyRunner]):
         if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(high > low)):
             raise ValueError(f"{env.name}'s action box must be finite with high > low, got [{low}, {high}]")
         self.action_size = int(space.shape[0])
-        self.action_scale = (high - low) / 2 * (1.0 + config.action_margin)  # widened: the env clips it back
+        self.action_scale = (high - low) / 2
         self.action_centre = (high + low) / 2
         self.log_action_scale = float(np.log(self.action_scale).sum())  # log|det| of the map onto the box
         self.obs_size = observation_size(env)

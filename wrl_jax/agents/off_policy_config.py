@@ -72,10 +72,6 @@ class OffPolicyConfig:
             temperature's), as PPO's ``anneal_lr`` does: the last policy then moves less between snapshots.
         anneal_from: the fraction of the run's updates (counted from the first, warm-up included) after which
             the decay starts (0: from the first); needs ``anneal_lr``.
-        action_margin: the actor's unit box is mapped onto the environment's box widened by this fraction,
-            which the environment clips back (0: no widening). Why: a tanh output reaches its bound only at
-            infinity, so full speed would cost SAC's policy entropy; with a margin it is reached at a finite
-            pre-activation.
 
     Traced:
         learning_rate: Adam step size of every network (and of SAC's temperature); the starting one under
@@ -102,7 +98,6 @@ class OffPolicyConfig:
     adam_eps: float = 1e-8
     anneal_lr: bool = False
     anneal_from: float = 0.0
-    action_margin: float = 0.0
     # traced
     learning_rate: float = 3e-4
     gamma: float = 0.99
@@ -162,9 +157,6 @@ class OffPolicyConfig:
         if start and not self.anneal_lr:
             raise ValueError(f"{owner}.anneal_from={start!r} needs anneal_lr=True (--anneal-lr): without it the step "
                              f"size is constant")
-        margin = self.action_margin
-        if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0.0 <= margin < 1.0:
-            raise ValueError(f"{owner}.action_margin must be in [0, 1) (0: the environment's box), got {margin!r}")
         rho = self.noise_correlation
         if isinstance(rho, bool) or not isinstance(rho, (int, float)) or not 0.0 <= rho < 1.0:
             raise ValueError(f"{owner}.noise_correlation must be in [0, 1), got {rho!r}")
