@@ -274,7 +274,7 @@ TD3_DEFAULT = TD3Config(
 )
 """Ours for the continuous warehouse, the same loop as SAC's default: on 12x12 over the safety stop
 (:data:`OFF_POLICY_ENV_DEFAULTS`), seeds 0-31, split over 2 cores: every item without a contact on 30 of 32
-seeds (bench/results/continuous/NOTES.md)."""
+seeds, on 32 with ``greedy_target`` (bench/results/continuous/NOTES.md)."""
 
 DYNAMIC_NAME = "Continuous-Warehouse-12x12-Dynamic-v0"
 CONTINUOUS_NAMES = (
