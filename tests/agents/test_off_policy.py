@@ -356,6 +356,7 @@ def test_discrete_environments_and_wrong_configs_are_refused(corridor):
         TD3(SAC_DEFAULT, env, params)
     assert TD3_DEFAULT.hyper().policy_noise == pytest.approx(0.2)
     assert TD3_DEFAULT.hyper().exploration_noise == pytest.approx(0.3)  # the continuous warehouse's (NOTES)
+    assert TD3(TD3_DEFAULT, env, params).averages_actor  # the default's greedy policy is its target actor (NOTES)
 
 
 def test_flops_count_both_phases(corridor):
