@@ -4,7 +4,8 @@ Loads a saved continuous-warehouse run on one of the study's static maps (``--ru
 seed's deterministic policy on the evaluation's episodes, runs the pursuit controller on the same map and
 prints, per item, the bound in steps (``item_bounds``: the disc's shortest path, and the strict bound that
 lets the pick-up and drop happen at ``reach_radius``), pursuit's steps, and each seed's steps with the step
-of its pick-up; then the per-item gap to pursuit averaged over the seeds.
+of its pick-up; then each seed's two legs (to the pick-up, then to the delivery) and the per-item gap to
+pursuit averaged over the seeds.
 
     python bench/investigations/continuous_per_item_steps.py --run /tmp/sac_default
 
@@ -47,6 +48,9 @@ def main() -> None:
               + "  ".join(f"{steps[s, i]:4d} ({pickup[s, i]:3d})" for s in range(steps.shape[0])))
     print(f"means: bound {bounds['steps'].mean():.2f}, strict bound {bounds['strict_steps'].mean():.2f}, pursuit "
           f"{pursuit.mean():.2f}, seeds {np.round(steps.mean(1), 2).tolist()}")
+    for s in range(steps.shape[0]):
+        print(f"seed {s}: the pick-up leg {pickup[s].mean():.2f} steps per item, the delivery leg "
+              f"{(steps[s] - pickup[s]).mean():.2f}")
     gap = steps.mean(0) - pursuit
     print(f"per item, the seeds' mean minus pursuit: {np.round(gap, 2).tolist()}; items where a seed is below "
           f"pursuit: {int((steps < pursuit).any(0).sum())} of {items}")
