@@ -6,9 +6,9 @@ steps (so that the traced call is mostly gradient steps), runs ``--updates`` upd
 program, traces it (``bench/xla_trace.py``) and prints the top instructions by time and the share of the
 matrix products (XLA's ``dot`` and its YNNPACK fusions, with their transposes) against everything else.
 
-    XLA_FLAGS=--xla_cpu_use_fusion_emitters=false python bench/investigations/off_policy_update_trace.py
+    python bench/investigations/off_policy_update_trace.py
 
-(the training commands' flag; about a minute). Recorded in bench/results/continuous/NOTES.md.
+(about a minute, with the XLA flags the training commands set). Recorded in bench/results/continuous/NOTES.md.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from wrl_jax.agents.base import make_train_seeds
 from wrl_jax.agents.off_policy_config import OFF_POLICY_ENV_DEFAULTS, SAC_DEFAULT, TD3_DEFAULT
 from wrl_jax.agents.sac import SAC
 from wrl_jax.agents.td3 import TD3
+from wrl_jax.cli.machine import DEFAULT_XLA_OPT_LEVEL, apply_xla_opt_level
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from xla_trace import fusion_shares  # noqa: E402  (bench/ is not a package)
@@ -41,6 +42,7 @@ def main() -> None:
     parser.add_argument("--updates", type=int, default=400, help="updates per seed in the traced program")
     parser.add_argument("--top", type=int, default=20)
     args = parser.parse_args()
+    apply_xla_opt_level(DEFAULT_XLA_OPT_LEVEL)  # before JAX starts its backend, as train_sac.py does
     algo_cls, default = LEARNERS[args.algo]
     env, params = wrl_jax.make(args.env, **OFF_POLICY_ENV_DEFAULTS[args.env])
     config = dataclasses.replace(default, learning_starts=512, total_timesteps=default.num_envs * args.updates)
