@@ -266,8 +266,11 @@ def test_the_family_hook_evaluates_pool_layouts_and_heldout_sets(env_params, mon
     assert {"mean_steps", "collisions_per_episode", "collision_free_rate", "mean_return"} <= set(heldout)
     assert set(report["ood"]) == {"study_8x8", "study_12x12"}
     assert report["ood"]["study_12x12"]["episodes_per_seed"] == 20 * evaluation.OBSTACLE_ROUNDS
+    # A fixed layout gets the yardstick on its evaluation's episodes instead (tests/envs/continuous/test_yardstick.py).
     plain, plain_params = wrl_jax.make("Continuous-Warehouse-8x8-v0")
-    assert evaluation.EVALUATION.final_report(FinalContext(_Algo, None, plain, plain_params, [0])) == {}
+    monkeypatch.setattr(evaluation, "yardstick_report", lambda env, params: {"env": env.name})
+    report = evaluation.EVALUATION.final_report(FinalContext(_Algo, None, plain, plain_params, [0]))
+    assert report == {"yardstick": {"env": "Continuous-Warehouse-8x8-v0"}}
 
 
 def test_sac_builds_and_updates_on_it(env_params):

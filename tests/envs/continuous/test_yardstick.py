@@ -20,6 +20,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 import fast_compile
 
+from wrl_jax.envs.continuous import evaluation
 from wrl_jax.envs.continuous import shortest_path as spath
 from wrl_jax.envs.continuous import yardstick
 from wrl_jax.envs.continuous.pursuit import PursuitConfig, in_the_way, make_plan, pursuit_act, pursuit_init
@@ -200,6 +201,61 @@ def test_randomized_pursuit_runs_and_delivers(static_run):
     results = pursuit_episodes(env, params, plan, CONFIG, jax.random.key(1), int(params.num_items),
                                          int(params.max_steps))
     assert np.mean(np.asarray(results["delivered_at"]) > 0) >= 0.9
+
+
+LEARNERS_VIEW = {"shaping": "geodesic", "observe_route": True, "observe_target": True, "observe_obstacles": True,
+                 "safety_stop": True}
+"""What SAC and TD3 train on by default: the yardstick beside them must not see any of it."""
+
+
+@pytest.mark.parametrize("static_run", [WAREHOUSE_12X12], ids=["12x12"], indirect=True)
+def test_the_training_report_runs_pursuit_on_the_evaluations_episodes(static_run):
+    """The final report's yardstick (``evaluation.final_report``): the controller on the episodes every policy is
+    evaluated on, in the contract's environment whatever view the learner had, and the items' mean bound."""
+    _, params, _, bounds, results = static_run
+    env, view_params = make_continuous(WAREHOUSE_12X12, **LEARNERS_VIEW)
+    got = jax.device_get(evaluation.evaluate_pursuit(env, view_params))
+    items = int(params.num_items)
+    assert got.delivered[0, :items].all() and got.collisions[0, :items].sum() == 0
+    # The static maps have one episode per item, the yardstick's own run too: the same steps, item by item
+    # (within a step: the two programs may fuse a multiply-add differently).
+    assert np.abs(got.steps[0, :items] - results["delivered_at"]).max() <= 1
+
+    report = evaluation.yardstick_report(env, view_params)
+    assert report["bound_steps"] == pytest.approx(bounds["steps"].mean())
+    assert report["strict_bound_steps"] == pytest.approx(bounds["strict_steps"].mean())
+    assert report["pursuit"]["mean_steps"] == pytest.approx(got.steps[0, :items].mean())
+    assert report["pursuit"]["success_rate"] == 1.0 and report["pursuit"]["collisions_per_episode"] == 0.0
+    # Randomization voids the bound: the report leaves it out (the same program: randomize is a parameter).
+    assert "bound_steps" not in evaluation.yardstick_report(env, view_params.replace(randomize=jnp.bool_(True)))
+
+    # The report prints them beside the policy's steps (here the controller's own, as a policy's would be).
+    summary = {**evaluation.summarize(jax.tree.map(lambda x: x[None], got)), "yardstick": report}
+    text = evaluation.format_report(summary, "pursuit")
+    bound, pursuit = report["bound_steps"], report["pursuit"]["mean_steps"]
+    excess = 100 * (summary["mean_steps"] / bound - 1)
+    assert f"(the lower bound {bound:.1f}: {excess:+.1f} %; pursuit {pursuit:.1f}) |" in text
+    assert f"| Pursuit controller (same episodes) | 100.0% delivered, 0.000 collisions per episode, {pursuit:.1f} " \
+           "steps |" in text
+
+
+def test_the_yardstick_and_the_policies_start_from_the_same_episodes():
+    """With moving obstacles the evaluation's episodes are its keys' draws: the learners' view and the contract's
+    environment the controller drives reset to the same states from them."""
+    env, params = make_continuous(WAREHOUSE_12X12, num_obstacles=4, **LEARNERS_VIEW)
+    plain = evaluation.ContinuousWarehouse(params, num_rays=env.num_rays, num_obstacles=env.num_obstacles)
+    keys = jax.random.split(jax.random.PRNGKey(evaluation.EVAL_SEED), 20)  # as run_episode splits them
+    items = jnp.arange(20, dtype=jnp.int32) % params.num_items
+
+    def starts(e):
+        def start(key, item):
+            draws = e.reset_draws(jax.random.split(key)[0], params).replace(item_index=item)
+            return e.reset_with(draws, params)[1]
+        return fast_compile.jit(jax.vmap(start))(keys, items)
+
+    for a, b in zip(jax.tree.leaves(starts(env)), jax.tree.leaves(starts(plain))):
+        np.testing.assert_array_equal(a, b)
+    assert np.unique(np.asarray(starts(plain).obstacle_pos).reshape(20, -1), axis=0).shape[0] > 1  # draws differ
 
 
 @pytest.fixture(scope="module")

@@ -8,13 +8,16 @@ is one jitted program: ``vmap`` over rounds and items, a ``lax.while_loop`` over
 once every episode has ended.
 
 The family's hook for the training driver and the CLI (:data:`EVALUATION`): a seed has *solved* its
-warehouse when every episode delivers without touching anything. The procedural variant (a pool of
+warehouse when every episode delivers without touching anything. After training, the pure-pursuit controller
+runs on the same episodes and the report prints it and the lower bound beside the policy's steps
+(:func:`yardstick_report`): a number of steps means little without what a planner does there. The procedural variant (a pool of
 layouts) brings its own episodes and a final generalization report through two methods the hook asks
 for (:mod:`~wrl_jax.envs.continuous.procedural_evaluation`); every other environment is unaffected.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -57,39 +60,43 @@ def rounds(env: ContinuousWarehouse) -> int:
     return OBSTACLE_ROUNDS if env.num_obstacles else 1
 
 
-def run_episode(act: Callable[[jax.Array, Any], jax.Array], env: ContinuousWarehouse, params: ContinuousParams,
-                key: jax.Array, item_index: jax.Array) -> tuple[jax.Array, ...]:
-    """One episode from ``key`` with the item forced; ``act(obs, state) -> action`` (a policy or a controller).
+def run_episode(act: Callable[..., Any], env: ContinuousWarehouse, params: ContinuousParams, key: jax.Array,
+                item_index: jax.Array, start: Callable[[Any], Any] | None = None) -> tuple[jax.Array, ...]:
+    """One episode from ``key`` with the item forced.
 
+    ``act(obs, state) -> action`` (a policy), or, given ``start(state) -> memory``, a controller that keeps a
+    memory between steps: ``act(obs, state, memory) -> (action, memory)`` (the pursuit controller).
     Returns ``(delivered, steps, return, collisions, pickup_step)``.
     """
     reset_key, step_key = jax.random.split(key)
     draws = env.reset_draws(reset_key, params).replace(item_index=jnp.asarray(item_index, jnp.int32))
     obs, state = env.reset_with(draws, params)
+    memory = () if start is None else start(state)
     zero = jnp.zeros((), jnp.int32)
-    init = (obs, state, jnp.zeros((), bool), jnp.zeros((), bool), jnp.zeros((), jnp.float32), zero, zero - 1)
+    init = (obs, state, memory, jnp.zeros((), bool), jnp.zeros((), bool), jnp.zeros((), jnp.float32), zero, zero - 1)
 
     def body(carry):
-        obs, state, _, _, ret, collisions, pickup_step = carry
-        action = act(obs, state)
+        obs, state, memory, _, _, ret, collisions, pickup_step = carry
+        action, memory = (act(obs, state), ()) if start is None else act(obs, state, memory)
         obs, state, reward, terminated, truncated, info = env.transition(
             jax.random.fold_in(step_key, state.time), state, action, params)
         pickup_step = jnp.where(info["picked_up"], state.time, pickup_step)
-        return (obs, state, terminated | truncated, terminated, ret + reward,
+        return (obs, state, memory, terminated | truncated, terminated, ret + reward,
                 collisions + info["collision"].astype(jnp.int32), pickup_step)
 
-    _, state, _, delivered, ret, collisions, pickup_step = jax.lax.while_loop(lambda c: ~c[2], body, init)
+    _, state, _, _, delivered, ret, collisions, pickup_step = jax.lax.while_loop(lambda c: ~c[3], body, init)
     return delivered, state.time, ret, collisions, pickup_step
 
 
-def evaluate_episodes(act: Callable[[jax.Array, Any], jax.Array], env: ContinuousWarehouse,
-                      params: ContinuousParams, num_rounds: int | None = None) -> ContinuousEval:
-    """``act`` on every (round, item): the evaluation's fixed episodes (shape ``(rounds, I_max)``)."""
+def evaluate_episodes(act: Callable[..., Any], env: ContinuousWarehouse, params: ContinuousParams,
+                      num_rounds: int | None = None, start: Callable[[Any], Any] | None = None) -> ContinuousEval:
+    """``act`` on every (round, item): the evaluation's fixed episodes (shape ``(rounds, I_max)``); ``start``
+    as in :func:`run_episode`."""
     num_rounds = rounds(env) if num_rounds is None else int(num_rounds)
     items = jnp.arange(params.items.shape[0], dtype=jnp.int32)
     keys = jax.random.split(jax.random.PRNGKey(EVAL_SEED), num_rounds * items.shape[0])
     keys = keys.reshape(num_rounds, items.shape[0], *keys.shape[1:])
-    episode = jax.vmap(jax.vmap(lambda k, i: run_episode(act, env, params, k, i)), in_axes=(0, None))
+    episode = jax.vmap(jax.vmap(lambda k, i: run_episode(act, env, params, k, i, start)), in_axes=(0, None))
     delivered, steps, ret, collisions, pickup_step = episode(keys, items)
     valid = jnp.broadcast_to(items < params.num_items, delivered.shape)
     return ContinuousEval(valid=valid, delivered=delivered & valid, steps=steps, episode_return=ret,
@@ -106,6 +113,42 @@ def evaluate_policy(greedy_action: GreedyFn, network_params: Any, env: Continuou
     act = lambda obs, state: greedy_action(network_params, obs)  # noqa: E731
     own = getattr(env, "evaluation_episodes", None)
     return evaluate_episodes(act, env, params) if own is None else own(act, params)
+
+
+def evaluate_pursuit(env: ContinuousWarehouse, params: ContinuousParams) -> ContinuousEval:
+    """The pure-pursuit controller on the evaluation's episodes (the same resets and step keys as every policy's).
+
+    It drives the contract's environment with these params: no shaping (rewards are not compared) and no
+    safety stop (the controller has its own guard), so its numbers are the yardstick's whatever view a
+    learner trained with.
+    """
+    from wrl_jax.envs.continuous.pursuit import PursuitConfig, make_plan
+
+    config = PursuitConfig()
+    plain = ContinuousWarehouse(params, num_rays=env.num_rays, num_obstacles=env.num_obstacles, name=env.name)
+    return _pursuit_on_episodes(plain, params, make_plan(params, config), config)
+
+
+@functools.partial(jax.jit, static_argnames=("env", "config"))
+def _pursuit_on_episodes(env: ContinuousWarehouse, params: ContinuousParams, plan: Any, config: Any) -> ContinuousEval:
+    from wrl_jax.envs.continuous.pursuit import pursuit_act, pursuit_init
+
+    act = lambda obs, state, control: pursuit_act(plan, control, state, params, config)  # noqa: E731
+    return evaluate_episodes(act, env, params, start=lambda state: pursuit_init(plan, state))
+
+
+def yardstick_report(env: ContinuousWarehouse, params: ContinuousParams) -> dict[str, Any]:
+    """The pursuit controller on the evaluation's episodes and, without randomization (which voids it), the
+    contract's lower bound and the strict bound, in steps per item (every item counts once)."""
+    pursuit = summarize(jax.tree.map(lambda x: x[None], evaluate_pursuit(env, params)))
+    report = {"pursuit": {name: pursuit[name] for name in
+                          ("success_rate", "mean_steps", "collisions_per_episode", "collision_free_rate")}}
+    if not bool(params.randomize):
+        from wrl_jax.envs.continuous.yardstick import item_bounds
+
+        bounds = item_bounds(params)
+        report.update(bound_steps=float(bounds["steps"].mean()), strict_bound_steps=float(bounds["strict_steps"].mean()))
+    return report
 
 
 # ---------------------------------------------------------------- in training
@@ -180,14 +223,32 @@ def format_report(summary: dict[str, Any], label: str, convergence_steps: Sequen
     rows = [
         ("Delivered", f"{_pct(summary['success_rate'])} ({where}{summary['num_items']} items x {summary['rounds']} "
                       f"rounds x {summary['num_seeds']} seeds; {solved}/{summary['num_seeds']} seeds solve it)"),
-        ("Mean steps (delivered)", _num(summary["mean_steps"])),
+        ("Mean steps (delivered)", _num(summary["mean_steps"]) + _beside_yardstick(summary)),
         ("Collisions per episode", _num(summary["collisions_per_episode"], "{:.3f}")),
         ("Collision-free episodes", _pct(summary["collision_free_rate"])),
         ("Mean return", _num(summary["mean_return"], "{:+.1f}")),
         ("First solved", conv),
     ]
+    pursuit = summary.get("yardstick", {}).get("pursuit")
+    if pursuit:
+        rows.append(("Pursuit controller (same episodes)",
+                     f"{_pct(pursuit['success_rate'])} delivered, {pursuit['collisions_per_episode']:.3f} collisions "
+                     f"per episode, {_num(pursuit['mean_steps'])} steps"))
     lines = [f"| Metric | {label} |", "|---|---|"] + [f"| {name} | {value} |" for name, value in rows]
     return "\n".join(lines)
+
+
+def _beside_yardstick(summary: dict[str, Any]) -> str:
+    """`` (bound B: +x %; pursuit P)`` after the policy's steps, as far as the final report measured them."""
+    yardstick, steps = summary.get("yardstick", {}), summary.get("mean_steps")
+    parts = []
+    if "bound_steps" in yardstick:
+        bound = yardstick["bound_steps"]
+        excess = "" if steps is None else f": {100.0 * (steps / bound - 1.0):+.1f} %"
+        parts.append(f"the lower bound {bound:.1f}{excess}")
+    if yardstick.get("pursuit", {}).get("mean_steps") is not None:
+        parts.append(f"pursuit {yardstick['pursuit']['mean_steps']:.1f}")
+    return f" ({'; '.join(parts)})" if parts else ""
 
 
 def format_seeds(summary: dict[str, Any]) -> str:
@@ -199,13 +260,14 @@ def format_seeds(summary: dict[str, Any]) -> str:
 
 
 def final_report(context: FinalContext) -> dict[str, Any]:
-    """After training, what the environment measures beyond the periodic episodes (``{}`` for a single layout).
+    """After training, what the environment measures beyond the periodic episodes: on a fixed layout the
+    yardstick on the same episodes (:func:`yardstick_report`), which the report prints beside the policy.
 
     An environment with a ``generalization_report(context)`` method (the procedural variant: held-out and
-    out-of-distribution layouts) is asked for it.
+    out-of-distribution layouts) is asked for that instead.
     """
     own = getattr(context.env, "generalization_report", None)
-    return {} if own is None else own(context)
+    return {"yardstick": yardstick_report(context.env, context.params)} if own is None else own(context)
 
 
 EVALUATION = FamilyEvaluation(
