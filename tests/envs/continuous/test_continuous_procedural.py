@@ -266,11 +266,30 @@ def test_the_family_hook_evaluates_pool_layouts_and_heldout_sets(env_params, mon
     assert {"mean_steps", "collisions_per_episode", "collision_free_rate", "mean_return"} <= set(heldout)
     assert set(report["ood"]) == {"study_8x8", "study_12x12"}
     assert report["ood"]["study_12x12"]["episodes_per_seed"] == 20 * evaluation.OBSTACLE_ROUNDS
+    # Beside each set, the controller on the same episodes; the bound is left out (randomization voids it).
+    for entry in (heldout, *report["ood"].values()):
+        assert set(entry["pursuit"]) == {"success_rate", "mean_steps", "collisions_per_episode", "collision_free_rate"}
+        assert "bound_steps" not in entry
+    assert heldout["pursuit"]["success_rate"] > heldout["success_rate"]  # against a fixed command
     # A fixed layout gets the yardstick on its evaluation's episodes instead (tests/envs/continuous/test_yardstick.py).
     plain, plain_params = wrl_jax.make("Continuous-Warehouse-8x8-v0")
     monkeypatch.setattr(evaluation, "yardstick_report", lambda env, params: {"env": env.name})
     report = evaluation.EVALUATION.final_report(FinalContext(_Algo, None, plain, plain_params, [0]))
     assert report == {"yardstick": {"env": "Continuous-Warehouse-8x8-v0"}}
+
+
+def test_the_yardstick_on_a_padded_study_map_is_the_fixed_maps():
+    """Pursuit and the bound beside the held-out sets are the fixed layout's yardstick, layout by layout: the
+    study's 8x8 map padded into the pool's shape gives the controller and the bound of the plain 8x8 map."""
+    env, params = make_continuous_procedural(pool_size=2, num_rays=8, randomize=False, max_steps=300)
+    study = LayoutSet("study_8x8", "8x8", stack([study_layout("8x8", env.generator.max_shape)]))
+    report = procedural_evaluation.evaluate_layout_sets(_Algo.greedy_action, jnp.array([0.0], jnp.float32), env,
+                                                        params, [study], [0])["study_8x8"]
+    plain, plain_params = wrl_jax.make("Continuous-Warehouse-8x8-v0")
+    fixed = evaluation.yardstick_report(plain, plain_params)
+    assert report["bound_steps"] == pytest.approx(fixed["bound_steps"], rel=1e-6)
+    assert report["pursuit"]["success_rate"] == 1.0 and report["pursuit"]["collisions_per_episode"] == 0.0
+    assert report["pursuit"]["mean_steps"] == pytest.approx(fixed["pursuit"]["mean_steps"], abs=0.2)
 
 
 def test_sac_builds_and_updates_on_it(env_params):

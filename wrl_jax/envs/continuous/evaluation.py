@@ -231,11 +231,21 @@ def format_report(summary: dict[str, Any], label: str, convergence_steps: Sequen
     ]
     pursuit = summary.get("yardstick", {}).get("pursuit")
     if pursuit:
-        rows.append(("Pursuit controller (same episodes)",
-                     f"{_pct(pursuit['success_rate'])} delivered, {pursuit['collisions_per_episode']:.3f} collisions "
-                     f"per episode, {_num(pursuit['mean_steps'])} steps"))
+        rows.append(("Pursuit controller (same episodes)", _outcome(pursuit)))
+    sets = {"held-out layouts": summary["heldout"]} if "heldout" in summary else {}
+    sets.update((f"{name} (out of distribution)", entry) for name, entry in summary.get("ood", {}).items())
+    for name, entry in sets.items():
+        if entry.get("episodes_per_seed"):
+            beside = f"; pursuit, same episodes: {_outcome(entry['pursuit'])}" if "pursuit" in entry else ""
+            rows.append((f"{entry['layouts']} {name}", _outcome(entry) + beside))
     lines = [f"| Metric | {label} |", "|---|---|"] + [f"| {name} | {value} |" for name, value in rows]
     return "\n".join(lines)
+
+
+def _outcome(entry: dict[str, Any]) -> str:
+    """Delivery, contacts and steps of a summary (a policy's or the controller's) as one report cell."""
+    return (f"{_pct(entry['success_rate'])} delivered, {entry['collisions_per_episode']:.3f} collisions per episode, "
+            f"{_num(entry['mean_steps'])} steps")
 
 
 def _beside_yardstick(summary: dict[str, Any]) -> str:

@@ -10,7 +10,9 @@ layouts it never saw afterwards (the generalization measurement).
   against the pool) and its out-of-distribution sets (denser floors, narrow aisles, the study's maps
   padded), every real (layout, item) pair for ``rounds(env)`` rounds, every seed in one compiled
   program (:func:`evaluate_layout_sets`); per set the continuous summary: delivery rate, steps of
-  delivered episodes, collisions per episode, collision-free rate, return, per seed.
+  delivered episodes, collisions per episode, collision-free rate, return, per seed; and beside it the
+  pure-pursuit controller on the same episodes (each layout's plan made on the host, :func:`pursuit_plans`)
+  and, without randomization, the lower bound: what a planner does on layouts the policy never saw.
 
 Episodes run on the plain environment with the layout's params (``run_episode`` of
 :mod:`~wrl_jax.envs.continuous.evaluation`), so they are the episodes the plain hook would run there.
@@ -57,22 +59,63 @@ def evaluate_pool_sample(act: Act, env, params, count: int | None = None) -> Con
                           collisions=collisions, pickup_step=pickup_step)
 
 
-def run_pairs(act: Act, env, params, slots: jax.Array, items: jax.Array, rounds_of: jax.Array) -> tuple:
+def run_pairs(act: Act | None, env, params, slots: jax.Array, items: jax.Array, rounds_of: jax.Array,
+              plans: Any = None) -> tuple:
     """Episodes ``(slot, item, round)`` of ``params``' pool, all at once: ``run_episode``'s outputs ``(E,)``.
 
-    Episode keys are ``fold_in`` of :data:`EVAL_SEED` with the slot, the item and the round (jittable).
+    ``act(obs, state)`` is a policy; with ``act=None`` the pure-pursuit controller drives instead, each
+    episode on its slot's plan (``plans``: :func:`pursuit_plans` of every pool slot). Episode keys are
+    ``fold_in`` of :data:`EVAL_SEED` with the slot, the item and the round (jittable).
     """
+    from wrl_jax.envs.continuous.pursuit import PursuitConfig, pursuit_act, pursuit_init
+
     root = jax.random.PRNGKey(EVAL_SEED)
 
     def one(slot, item, round_index):
         key = jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(root, slot), item), round_index)
-        return run_episode(act, env.plain, layout_params(params, slot), key, item)
+        layout = layout_params(params, slot)
+        if act is not None:
+            return run_episode(act, env.plain, layout, key, item)
+        plan = jax.tree.map(lambda leaf: leaf[slot], plans)
+        drive = lambda obs, state, control: pursuit_act(plan, control, state, layout, PursuitConfig())  # noqa: E731
+        return run_episode(drive, env.plain, layout, key, item, start=lambda state: pursuit_init(plan, state))
 
     return jax.vmap(one)(slots, items, rounds_of)
 
 
+def pursuit_plans(params, slots: np.ndarray) -> tuple[Any, np.ndarray]:
+    """``(plans, bounds)`` for the pool slots ``slots``: the pursuit plans, padded to one shape and stacked
+    (item rows past a layout's count far away, so the controller never takes one for its item), and each
+    (slot, item)'s lower bound in steps, ``(len(slots), I)`` with NaN past the layout's items. Host NumPy
+    throughout (no program per layout): about 70 ms a layout."""
+    from wrl_jax.envs.continuous.pursuit import make_plan
+    from wrl_jax.envs.continuous.yardstick import item_bounds
+
+    pool = jax.tree.map(np.asarray, params.pool)
+    capacity = int(pool.items.shape[-2])
+    plans, bounds = [], np.full((len(slots), capacity), np.nan)
+    for row, slot in enumerate(slots):
+        # layout_params' fields, in NumPy: points are cell centres (col + 0.5, row + 0.5).
+        centre = lambda cells: (cells[..., ::-1] + 0.5).astype(np.float32)  # noqa: E731
+        layout = params.replace(shelves=pool.blocked[slot], start=centre(pool.start[slot]), goal=centre(pool.goal[slot]),
+                                items=centre(pool.items[slot]), num_items=pool.num_items[slot])
+        plans.append(jax.tree.map(np.asarray, make_plan(layout)))
+        bounds[row, : int(layout.num_items)] = item_bounds(layout)["steps"]
+    size = max(plan.points.shape[2] for plan in plans)
+
+    def padded(plan):
+        more, items = size - plan.points.shape[2], capacity - plan.items.shape[0]
+        points = np.concatenate([plan.points, np.repeat(plan.points[:, :, -1:], more, 2)], 2)
+        cumlen = np.concatenate([plan.cumlen, np.repeat(plan.cumlen[:, :, -1:], more, 2)], 2)
+        return plan.replace(points=np.pad(points, ((0, items), (0, 0), (0, 0), (0, 0))),
+                            cumlen=np.pad(cumlen, ((0, items), (0, 0), (0, 0))),
+                            items=np.pad(plan.items, ((0, items), (0, 0)), constant_values=1e6))
+
+    return jax.tree.map(lambda *leaves: jnp.asarray(np.stack(leaves)), *[padded(plan) for plan in plans]), bounds
+
+
 def evaluate_layout_sets(greedy_action: GreedyFn, network_params: Any, env, params, sets: Sequence[LayoutSet],
-                         seeds: Sequence[int]) -> dict[str, Any]:
+                         seeds: Sequence[int], yardstick: bool = True) -> dict[str, Any]:
     """Every seed's greedy policy (leading axis of ``network_params``) on every real (layout, item) of ``sets``.
 
     The sets are padded to one item capacity and run as one pool, in one compiled program. With
@@ -80,7 +123,9 @@ def evaluate_layout_sets(greedy_action: GreedyFn, network_params: Any, env, para
     ``excluded_layouts``). Returns ``{set name: summary}``, each :func:`evaluation.summarize`'s
     numbers (``success_rate``, ``mean_steps``, ``collisions_per_episode``, ``collision_free_rate``,
     ``mean_return``, ``per_seed``) with ``description``, ``layouts``, ``excluded_layouts``,
-    ``episodes_per_seed`` and ``rounds``.
+    ``episodes_per_seed`` and ``rounds``; under ``yardstick`` also ``pursuit`` (the controller on the same
+    episodes: ``success_rate``, ``mean_steps``, ``collisions_per_episode``, ``collision_free_rate``) and,
+    without randomization, ``bound_steps`` (the lower bound's mean over the set's episodes).
 
     Raises:
         ValueError: no sets, or a set padded to another shape than the environment's map.
@@ -109,6 +154,12 @@ def evaluate_layout_sets(greedy_action: GreedyFn, network_params: Any, env, para
     outcome = program(network_params, eval_params, *(jnp.asarray(a, jnp.int32) for a in (slots, items, round_of)))
     delivered, steps, ret, collisions, pickup_step = (np.asarray(x) for x in outcome)
     set_of_slot = np.repeat(np.arange(len(sets)), [layout_set.size for layout_set in sets])
+    if yardstick:
+        plans, bounds = pursuit_plans(eval_params, np.arange(set_of_slot.size))
+        controller = jax.jit(lambda params, plans, *pairs: run_pairs(None, env, params, *pairs, plans=plans))
+        driven = [np.asarray(x) for x in controller(eval_params, plans, *(jnp.asarray(a, jnp.int32)
+                                                                         for a in (slots, items, round_of)))]
+        randomized = bool(params.randomize)
     report = {}
     for index, layout_set in enumerate(sets):
         mine = set_of_slot[slots] == index
@@ -126,7 +177,21 @@ def evaluate_layout_sets(greedy_action: GreedyFn, network_params: Any, env, para
         report[layout_set.name] = {"description": layout_set.description, "layouts": layout_set.size - excluded,
                                    "excluded_layouts": excluded, "episodes_per_seed": int(mine.sum()),
                                    "rounds": num_rounds, **summary}
+        if yardstick:
+            report[layout_set.name].update(_yardstick(driven, mine, None if randomized else bounds[slots, items]))
     return report
+
+
+def _yardstick(driven: list[np.ndarray], mine: np.ndarray, bounds: np.ndarray | None) -> dict[str, Any]:
+    """The controller's numbers on a set's episodes (``mine``) and, where it holds, the bound's mean there."""
+    delivered, steps, ret, collisions, pickup_step = (x[None, None, mine] for x in driven)
+    result = summarize(ContinuousEval(valid=np.ones_like(delivered), delivered=delivered, steps=steps,
+                                      episode_return=ret, collisions=collisions, pickup_step=pickup_step))
+    out = {"pursuit": {name: result[name] for name in
+                       ("success_rate", "mean_steps", "collisions_per_episode", "collision_free_rate")}}
+    if bounds is not None:
+        out["bound_steps"] = float(bounds[mine].mean())
+    return out
 
 
 def generalization_sets(env, params, heldout_layouts: int | None = None,
