@@ -18,6 +18,7 @@ from wrl_jax.cli import train as cli_train
 from wrl_jax.core import registry
 from wrl_jax.envs.rware import evaluation, make_rware
 from wrl_jax.envs.rware.registration import reward_code
+from wrl_jax.envs.rware.scripted import team_episodes
 from wrl_jax.envs.rware.types import FORWARD, LEFT_DIR, NOOP, RIGHT, RIGHT_DIR, TOGGLE_LOAD
 
 ROW = "xgx"
@@ -131,6 +132,11 @@ def test_train_ppo_on_rware_reports_the_hooks_numbers(tmp_path):
     assert int(algo.env_params.max_inactivity_steps) == 400
     assert int(algo.env_params.reward_type) == reward_code("global")
     assert "episode return, all agents" in printed.getvalue()
+    # Beside the team, the scripted team on the same episodes and settings (the final report's yardstick).
+    direct = team_episodes(algo.env, algo.env_params)
+    assert ev["scripted"]["return"] == pytest.approx(float(np.mean(direct.team_return))) and ev["scripted"]["return"] > 0
+    assert f"| scripted team, same episodes: return (95 % CI over episodes), deliveries | {ev['scripted']['return']:.2f}" \
+        in printed.getvalue()
     rows = (out / "metrics.csv").read_text().splitlines()
     assert {"eval_return", "eval_solved", "train_throughput"} <= set(rows[0].split(","))
 

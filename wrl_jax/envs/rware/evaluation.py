@@ -171,6 +171,10 @@ def format_report(summary: dict[str, Any], label: str, convergence_steps: Sequen
         ("seeds solved (every agent delivers in every episode)", f"{summary['seeds_solved']} of {len(rows)}"),
         ("first solved", first),
     ]
+    if "scripted" in summary:
+        scripted = summary["scripted"]
+        table.append(("scripted team, same episodes: return (95 % CI over episodes), deliveries",
+                      f"{scripted['return']:.2f}{_span(scripted['return_ci95'])}, {scripted['deliveries']:.2f}"))
     return "\n".join([f"| {label} | |", "|---|---|", *(f"| {name} | {value} |" for name, value in table)])
 
 
@@ -184,6 +188,18 @@ def format_details(summary: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def final_report(context: Any) -> dict[str, Any]:
+    """After training: the scripted team (:mod:`~wrl_jax.envs.rware.scripted`, the family's yardstick) on the
+    evaluation's episodes, the same warehouses and replacement draws the greedy team met; the report prints it
+    beside the learned team's return."""
+    from wrl_jax.envs.rware import scripted
+
+    result = jax.device_get(scripted.team_episodes(context.env, context.params))
+    returns = np.asarray(result.team_return, np.float64)
+    return {"scripted": {"return": float(returns.mean()), "return_ci95": _interval(returns)["ci95"],
+                         "deliveries": float(np.asarray(result.deliveries).sum(axis=-1).mean())}}
+
+
 EVALUATION = FamilyEvaluation(
     evaluate_policy=evaluate_policy,
     seed_summary=seed_summary,
@@ -192,6 +208,7 @@ EVALUATION = FamilyEvaluation(
     summarize=summarize,
     format_report=format_report,
     format_details=format_details,
+    final_report=final_report,
     progress_metric=("eval_return", "eval return"),
     progress_percent=False,
     train_rates=(TrainRate("train_throughput", "deliveries per step (training)", "deliveries_sum", per="step"),),

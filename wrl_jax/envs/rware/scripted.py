@@ -32,7 +32,7 @@ What we chose, and why (measured on tiny-2ag, tiny-4ag, small-4ag):
   cost 1-2 % of the deliveries when tuned (on other episodes than the evaluation's).
 
 On the evaluation's 32 episodes (``python -m wrl_jax.plan --planner scripted``) the team returns 29.8
-(tiny-2ag), 58.2 (tiny-4ag) and 40.8 (small-4ag), its worst episode within 11 % of the mean; a
+(tiny-2ag), 57.9 (tiny-4ag) and 41.0 (small-4ag), its worst episode within 11 % of the mean; a
 uniform random team 0.03 to 0.06.
 """
 
