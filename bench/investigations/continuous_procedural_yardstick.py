@@ -7,7 +7,7 @@ numbers: the column beside a run trained before the report had it (docs/continuo
 ``--study-copies N`` also runs the study's 12x12 map N times over (other keys, the same map), with and without
 randomization, to show how much the controller's steps move with the draws.
 
-    python bench/investigations/continuous_procedural_yardstick.py            # about 40 s
+    python bench/investigations/continuous_procedural_yardstick.py            # about a minute
 """
 
 from __future__ import annotations
@@ -34,11 +34,14 @@ class StandStill:
 
 
 def line(name: str, entry: dict) -> str:
+    if "pursuit" not in entry:
+        return f"{name:>16}: {entry['layouts']:4d} layouts; no pursuit: {entry.get('pursuit_unavailable', 'no episodes')}"
     pursuit = entry["pursuit"]
+    steps = "n/a" if pursuit["mean_steps"] is None else f"{pursuit['mean_steps']:.1f}"
     bound = f", bound {entry['bound_steps']:.2f}" if "bound_steps" in entry else ""
     return (f"{name:>16}: {entry['layouts']:4d} layouts, {entry['episodes_per_seed']:5d} episodes; pursuit "
             f"{100 * pursuit['success_rate']:.1f} % delivered, {pursuit['collisions_per_episode']:.3f} collisions "
-            f"per episode, {pursuit['mean_steps']:.1f} steps{bound}")
+            f"per episode, {steps} steps{bound}")
 
 
 def main() -> None:

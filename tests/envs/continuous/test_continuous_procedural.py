@@ -278,18 +278,58 @@ def test_the_family_hook_evaluates_pool_layouts_and_heldout_sets(env_params, mon
     assert report == {"yardstick": {"env": "Continuous-Warehouse-8x8-v0"}}
 
 
-def test_the_yardstick_on_a_padded_study_map_is_the_fixed_maps():
-    """Pursuit and the bound beside the held-out sets are the fixed layout's yardstick, layout by layout: the
-    study's 8x8 map padded into the pool's shape gives the controller and the bound of the plain 8x8 map."""
-    env, params = make_continuous_procedural(pool_size=2, num_rays=8, randomize=False, max_steps=300)
+def test_the_yardstick_beside_the_sets_is_the_fixed_layouts_whatever_the_view():
+    """Pursuit and the bound beside the final report's sets: the study's 8x8 map padded into the pool's shape
+    gives the plain 8x8 map's controller and bound; on held-out layouts of several items (plans of different
+    lengths, padded together) the bound is each layout's own, and the learners' safety stop changes nothing the
+    controller does (it drives the contract's environment)."""
+    from wrl_jax.envs.continuous.procedural_layouts import with_pool
+    from wrl_jax.envs.continuous.yardstick import item_bounds
+
+    settings = {"pool_size": 2, "num_rays": 8, "randomize": False, "max_steps": 300}
+    env, params = make_continuous_procedural(**settings)
+    guarded, guarded_params = make_continuous_procedural(**settings, safety_stop=True, safety_margin=0.2)
     study = LayoutSet("study_8x8", "8x8", stack([study_layout("8x8", env.generator.max_shape)]))
-    report = procedural_evaluation.evaluate_layout_sets(_Algo.greedy_action, jnp.array([0.0], jnp.float32), env,
-                                                        params, [study], [0])["study_8x8"]
-    plain, plain_params = wrl_jax.make("Continuous-Warehouse-8x8-v0")
-    fixed = evaluation.yardstick_report(plain, plain_params)
-    assert report["bound_steps"] == pytest.approx(fixed["bound_steps"], rel=1e-6)
-    assert report["pursuit"]["success_rate"] == 1.0 and report["pursuit"]["collisions_per_episode"] == 0.0
-    assert report["pursuit"]["mean_steps"] == pytest.approx(fixed["pursuit"]["mean_steps"], abs=0.2)
+    heldout, _ = heldout_set(env.generator, env.training_layout_hashes(params), 6)
+    reports = [procedural_evaluation.evaluate_layout_sets(_Algo.greedy_action, jnp.array([0.0], jnp.float32), e,
+                                                          p, [study, heldout], [0])
+               for e, p in ((env, params), (guarded, guarded_params))]
+    assert reports[0]["heldout"]["pursuit"] == reports[1]["heldout"]["pursuit"]
+    assert reports[0]["study_8x8"]["pursuit"] == reports[1]["study_8x8"]["pursuit"]
+
+    _, plain_params = wrl_jax.make("Continuous-Warehouse-8x8-v0")
+    plain_bounds = item_bounds(plain_params)
+    entry = reports[0]["study_8x8"]
+    assert entry["bound_steps"] == pytest.approx(plain_bounds["steps"].mean(), rel=1e-6)
+    assert entry["pursuit"]["success_rate"] == 1.0 and entry["pursuit"]["collisions_per_episode"] == 0.0
+    # As on the plain map (tests/envs/continuous/test_yardstick.py): never under the strict bound, within 3 %.
+    assert plain_bounds["strict_steps"].mean() <= entry["pursuit"]["mean_steps"] <= 1.03 * entry["bound_steps"]
+
+    layouts = with_pool(params, heldout.layouts)
+    counts = np.asarray(heldout.layouts.num_items)
+    assert counts.max() > counts.min()  # plans and item rows of different sizes, padded together
+    bounds = [item_bounds(layout_params(layouts, k))["steps"] for k in range(heldout.size)]
+    assert reports[0]["heldout"]["episodes_per_seed"] == counts.sum()
+    assert reports[0]["heldout"]["bound_steps"] == pytest.approx(np.concatenate(bounds).mean(), rel=1e-9)
+    assert reports[0]["heldout"]["pursuit"]["success_rate"] == 1.0
+
+
+def test_the_report_prints_a_row_per_set_with_what_it_measured():
+    """The final report's sets in the printed table: the policy, the controller and the bound where measured;
+    a set left empty (every layout excluded) prints nothing."""
+    outcome = {"success_rate": 0.5, "collisions_per_episode": 1.0, "mean_steps": 80.0}
+    summary = {"success_rate": 0.8, "mean_steps": 90.0, "collisions_per_episode": 0.5, "collision_free_rate": 0.5,
+               "mean_return": 1.0, "num_items": 5, "rounds": 1, "num_seeds": 1, "layouts": 16,
+               "per_seed": [{"success_rate": 0.8, "collision_free_rate": 0.5}],
+               "heldout": {"layouts": 250, "episodes_per_seed": 900, **outcome, "bound_steps": 61.25,
+                           "pursuit": {**outcome, "success_rate": 1.0, "mean_steps": 70.0}},
+               "ood": {"dense": {"layouts": 64, "episodes_per_seed": 100, **outcome},
+                       "empty": {"layouts": 0, "episodes_per_seed": 0}}}
+    rows = evaluation.format_report(summary, "test").splitlines()
+    assert ("| 250 held-out layouts | 50.0% delivered, 1.000 collisions per episode, 80.0 steps; pursuit, same "
+            "episodes: 100.0% delivered, 1.000 collisions per episode, 70.0 steps; the contract's bound 61.2 |") in rows
+    assert "| 64 dense (out of distribution) | 50.0% delivered, 1.000 collisions per episode, 80.0 steps |" in rows
+    assert not any("empty" in row for row in rows)
 
 
 def test_sac_builds_and_updates_on_it(env_params):

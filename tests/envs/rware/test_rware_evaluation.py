@@ -4,6 +4,7 @@ over agents as EPyMARL sums them; and a tiny PPO run through ``train_ppo.py``'s 
 from __future__ import annotations
 
 import contextlib
+import inspect
 import io
 import json
 
@@ -134,6 +135,9 @@ def test_train_ppo_on_rware_reports_the_hooks_numbers(tmp_path):
     assert "episode return, all agents" in printed.getvalue()
     # Beside the team, the scripted team on the same episodes and settings (the final report's yardstick).
     direct = team_episodes(algo.env, algo.env_params)
+    defaults = inspect.signature(team_episodes).parameters  # the learner's episodes: its count and its key
+    assert (defaults["num_episodes"].default, defaults["seed"].default) == (evaluation.TRAINING_EPISODES,
+                                                                          evaluation.EVAL_SEED)
     assert ev["scripted"]["return"] == pytest.approx(float(np.mean(direct.team_return))) and ev["scripted"]["return"] > 0
     assert f"| scripted team, same episodes: return (95 % CI over episodes), deliveries | {ev['scripted']['return']:.2f}" \
         in printed.getvalue()

@@ -20,6 +20,7 @@ Episodes run on the plain environment with the layout's params (``run_episode`` 
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -28,7 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from wrl_jax.envs.continuous.evaluation import EVAL_SEED, ContinuousEval, rounds, run_episode, summarize
+from wrl_jax.envs.continuous.evaluation import (EVAL_SEED, ContinuousEval, contract_env, rounds, run_episode,
+                                                summarize)
 from wrl_jax.envs.continuous.procedural_layouts import layout_params, pool_size, with_pool
 from wrl_jax.envs.procedural.layout_sets import LayoutSet, heldout_set, ood_sets, pad_items
 
@@ -60,15 +62,18 @@ def evaluate_pool_sample(act: Act, env, params, count: int | None = None) -> Con
 
 
 def run_pairs(act: Act | None, env, params, slots: jax.Array, items: jax.Array, rounds_of: jax.Array,
-              plans: Any = None) -> tuple:
+              plans: Any = None, controller_env: Any = None) -> tuple:
     """Episodes ``(slot, item, round)`` of ``params``' pool, all at once: ``run_episode``'s outputs ``(E,)``.
 
-    ``act(obs, state)`` is a policy; with ``act=None`` the pure-pursuit controller drives instead, each
-    episode on its slot's plan (``plans``: :func:`pursuit_plans` of every pool slot). Episode keys are
-    ``fold_in`` of :data:`EVAL_SEED` with the slot, the item and the round (jittable).
+    ``act(obs, state)`` is a policy on ``env.plain``; with ``act=None`` the pure-pursuit controller drives
+    ``controller_env`` (:func:`~wrl_jax.envs.continuous.evaluation.contract_env`) instead, each episode on its
+    slot's plan (``plans``: :func:`pursuit_plans` of every pool slot). Episode keys are ``fold_in`` of
+    :data:`EVAL_SEED` with the slot, the item and the round, the same for both (jittable).
     """
     from wrl_jax.envs.continuous.pursuit import PursuitConfig, pursuit_act, pursuit_init
 
+    if act is None and (plans is None or controller_env is None):
+        raise ValueError("run_pairs: the controller (act=None) needs plans and controller_env")
     root = jax.random.PRNGKey(EVAL_SEED)
 
     def one(slot, item, round_index):
@@ -78,7 +83,7 @@ def run_pairs(act: Act | None, env, params, slots: jax.Array, items: jax.Array, 
             return run_episode(act, env.plain, layout, key, item)
         plan = jax.tree.map(lambda leaf: leaf[slot], plans)
         drive = lambda obs, state, control: pursuit_act(plan, control, state, layout, PursuitConfig())  # noqa: E731
-        return run_episode(drive, env.plain, layout, key, item, start=lambda state: pursuit_init(plan, state))
+        return run_episode(drive, controller_env, layout, key, item, start=lambda state: pursuit_init(plan, state))
 
     return jax.vmap(one)(slots, items, rounds_of)
 
@@ -87,16 +92,21 @@ def pursuit_plans(params, slots: np.ndarray) -> tuple[Any, np.ndarray]:
     """``(plans, bounds)`` for the pool slots ``slots``: the pursuit plans, padded to one shape and stacked
     (item rows past a layout's count far away, so the controller never takes one for its item), and each
     (slot, item)'s lower bound in steps, ``(len(slots), I)`` with NaN past the layout's items. Host NumPy
-    throughout (no program per layout): about 70 ms a layout."""
+    throughout (no program per layout): about 70 ms a layout on the 2-core development CPU.
+
+    Raises:
+        ValueError: from :func:`~wrl_jax.envs.continuous.pursuit.make_plan` (a robot too wide for its margin).
+    """
     from wrl_jax.envs.continuous.pursuit import make_plan
     from wrl_jax.envs.continuous.yardstick import item_bounds
+
+    def centre(cells: np.ndarray) -> np.ndarray:  # layout_params' points, in NumPy: (col + 0.5, row + 0.5)
+        return (cells[..., ::-1] + 0.5).astype(np.float32)
 
     pool = jax.tree.map(np.asarray, params.pool)
     capacity = int(pool.items.shape[-2])
     plans, bounds = [], np.full((len(slots), capacity), np.nan)
     for row, slot in enumerate(slots):
-        # layout_params' fields, in NumPy: points are cell centres (col + 0.5, row + 0.5).
-        centre = lambda cells: (cells[..., ::-1] + 0.5).astype(np.float32)  # noqa: E731
         layout = params.replace(shelves=pool.blocked[slot], start=centre(pool.start[slot]), goal=centre(pool.goal[slot]),
                                 items=centre(pool.items[slot]), num_items=pool.num_items[slot])
         plans.append(jax.tree.map(np.asarray, make_plan(layout)))
@@ -154,11 +164,16 @@ def evaluate_layout_sets(greedy_action: GreedyFn, network_params: Any, env, para
     outcome = program(network_params, eval_params, *(jnp.asarray(a, jnp.int32) for a in (slots, items, round_of)))
     delivered, steps, ret, collisions, pickup_step = (np.asarray(x) for x in outcome)
     set_of_slot = np.repeat(np.arange(len(sets)), [layout_set.size for layout_set in sets])
+    unavailable = None
     if yardstick:
-        plans, bounds = pursuit_plans(eval_params, np.arange(set_of_slot.size))
-        controller = jax.jit(lambda params, plans, *pairs: run_pairs(None, env, params, *pairs, plans=plans))
-        driven = [np.asarray(x) for x in controller(eval_params, plans, *(jnp.asarray(a, jnp.int32)
-                                                                         for a in (slots, items, round_of)))]
+        try:
+            plans, bounds = pursuit_plans(eval_params, np.arange(set_of_slot.size))
+        except ValueError as error:  # after training: say why, do not lose the run's report
+            yardstick, unavailable = False, str(error)
+    if yardstick:
+        pairs = (jnp.asarray(a, jnp.int32) for a in (slots, items, round_of))
+        driven = [np.asarray(x) for x in _pursuit_pairs(contract_env(env.plain, env.default_params), eval_params,
+                                                        plans, *pairs)]
         randomized = bool(params.randomize)
     report = {}
     for index, layout_set in enumerate(sets):
@@ -179,7 +194,16 @@ def evaluate_layout_sets(greedy_action: GreedyFn, network_params: Any, env, para
                                    "rounds": num_rounds, **summary}
         if yardstick:
             report[layout_set.name].update(_yardstick(driven, mine, None if randomized else bounds[slots, items]))
+        elif unavailable:
+            report[layout_set.name]["pursuit_unavailable"] = unavailable
     return report
+
+
+@functools.partial(jax.jit, static_argnames=("controller_env",))
+def _pursuit_pairs(controller_env: Any, params: Any, plans: Any, slots: jax.Array, items: jax.Array,
+                   rounds_of: jax.Array) -> tuple:
+    """:func:`run_pairs` with the controller: one program per contract environment, whatever view trained."""
+    return run_pairs(None, None, params, slots, items, rounds_of, plans=plans, controller_env=controller_env)
 
 
 def _yardstick(driven: list[np.ndarray], mine: np.ndarray, bounds: np.ndarray | None) -> dict[str, Any]:
