@@ -8,11 +8,12 @@ is one jitted program: ``vmap`` over rounds and items, a ``lax.while_loop`` over
 once every episode has ended.
 
 The family's hook for the training driver and the CLI (:data:`EVALUATION`): a seed has *solved* its
-warehouse when every episode delivers without touching anything. After training, the pure-pursuit controller
-runs on the same episodes and the report prints it and the lower bound beside the policy's steps
-(:func:`yardstick_report`): a number of steps means little without what a planner does there. The procedural variant (a pool of
-layouts) brings its own episodes and a final generalization report through two methods the hook asks
-for (:mod:`~wrl_jax.envs.continuous.procedural_evaluation`); every other environment is unaffected.
+warehouse when every episode delivers without touching anything. After training, the pure-pursuit
+controller runs on the same episodes and the report prints it and the bounds beside the policy's steps
+(:func:`yardstick_report`): a number of steps means little without what a planner does there. The
+procedural variant (a pool of layouts) brings its own episodes and a final generalization report through
+two methods the hook asks for (:mod:`~wrl_jax.envs.continuous.procedural_evaluation`); every other
+environment is unaffected.
 """
 
 from __future__ import annotations
