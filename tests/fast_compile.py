@@ -15,7 +15,7 @@ test of float results at level 0 may compare with a tolerance, or with a referen
 bit-identity with a program the package compiles at another level (``tests/commands_level.py``).
 
 :func:`jit` is ``jax.jit`` with that compile option, for the tests' own programs; :func:`fast` compiles
-a jitted function of the package (``scripted.team_episodes``, say) the same way, calling it inside
+a jitted function of the package (``evaluation.team_episodes`` of rware, say) the same way, calling it inside
 one such program. Importable as ``import fast_compile`` from any test (pytest puts ``tests/`` on the path).
 """
 

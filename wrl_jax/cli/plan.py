@@ -144,22 +144,21 @@ def run_scripted_plan(env_name: str, episodes: int, horizon: int | None = None, 
     import numpy as np
 
     from wrl_jax.core import registry
-    from wrl_jax.envs.rware import scripted
-    from wrl_jax.envs.rware.evaluation import horizon_of
+    from wrl_jax.envs.rware import evaluation, scripted
     from wrl_jax.stats import mean_ci
 
     _positive("--episodes", episodes)
     check_family("scripted", env_name)
     env, params = registry.make(env_name)
-    horizon = horizon_of(env) if horizon is None else _positive("--horizon", horizon)
+    horizon = evaluation.horizon_of(env) if horizon is None else _positive("--horizon", horizon)
     static = {"num_episodes": episodes, "horizon": horizon, "seed": seed}
     start = time.perf_counter()
-    compiled = scripted.team_episodes.lower(env, params, team="scripted", **static).compile()
+    compiled = evaluation.team_episodes.lower(env, params, team="scripted", **static).compile()
     compile_s = time.perf_counter() - start
     start = time.perf_counter()
     result = jax.device_get(compiled(params))
     run_s = time.perf_counter() - start
-    floor = jax.device_get(scripted.team_episodes(env, params, team="random", **static))
+    floor = jax.device_get(evaluation.team_episodes(env, params, team="random", **static))
     returns, deliveries = np.asarray(result.team_return, np.float64), np.asarray(result.deliveries)
     interval = mean_ci(returns)
     return {

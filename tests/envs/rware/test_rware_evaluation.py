@@ -19,7 +19,6 @@ from wrl_jax.cli import train as cli_train
 from wrl_jax.core import registry
 from wrl_jax.envs.rware import evaluation, make_rware
 from wrl_jax.envs.rware.registration import reward_code
-from wrl_jax.envs.rware.scripted import team_episodes
 from wrl_jax.envs.rware.types import FORWARD, LEFT_DIR, NOOP, RIGHT, RIGHT_DIR, TOGGLE_LOAD
 
 ROW = "xgx"
@@ -134,8 +133,8 @@ def test_train_ppo_on_rware_reports_the_hooks_numbers(tmp_path):
     assert int(algo.env_params.reward_type) == reward_code("global")
     assert "episode return, all agents" in printed.getvalue()
     # Beside the team, the scripted team on the same episodes and settings (the final report's yardstick).
-    direct = team_episodes(algo.env, algo.env_params)
-    defaults = inspect.signature(team_episodes).parameters  # the learner's episodes: its count and its key
+    direct = evaluation.team_episodes(algo.env, algo.env_params)
+    defaults = inspect.signature(evaluation.team_episodes).parameters  # the learner's episodes: its count and its key
     assert (defaults["num_episodes"].default, defaults["seed"].default) == (evaluation.TRAINING_EPISODES,
                                                                           evaluation.EVAL_SEED)
     assert ev["scripted"]["return"] == pytest.approx(float(np.mean(direct.team_return))) and ev["scripted"]["return"] > 0

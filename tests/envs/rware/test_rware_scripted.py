@@ -24,8 +24,8 @@ from wrl_jax.envs.rware import evaluation, make_rware, scripted
 from wrl_jax.envs.rware.types import FORWARD, NUM_ACTIONS, TOGGLE_LOAD
 
 STEP_X, STEP_Y = np.array(scripted.STEP_X), np.array(scripted.STEP_Y)
-TEAM_EPISODES = fast_compile.fast(scripted.team_episodes, (0,), ("num_episodes", "horizon", "seed", "team"))
-"""``scripted.team_episodes`` compiled at LLVM level 0 (``fast_compile``); the same numbers, in less compile time."""
+TEAM_EPISODES = fast_compile.fast(evaluation.team_episodes, (0,), ("num_episodes", "horizon", "seed", "team"))
+"""``evaluation.team_episodes`` compiled at LLVM level 0 (``fast_compile``); the same numbers, in less compile time."""
 
 
 def python_bfs(seed: np.ndarray, passable: np.ndarray) -> np.ndarray:
@@ -98,8 +98,8 @@ def team_and_random(name: str):
     env, params = registry.make(name)
     if name == PLAN_ENV:
         static = {"num_episodes": PLAN_EPISODES, "horizon": 500, "seed": 0}
-        team = scripted.team_episodes.lower(env, params, team="scripted", **static).compile()(params)
-        random = scripted.team_episodes(env, params, team="random", **static)
+        team = evaluation.team_episodes.lower(env, params, team="scripted", **static).compile()(params)
+        random = evaluation.team_episodes(env, params, team="random", **static)
     else:
         team = TEAM_EPISODES(env, params, num_episodes=4)
         random = TEAM_EPISODES(env, params, num_episodes=4, team="random")
@@ -197,7 +197,7 @@ def test_bad_combinations_exit_2_with_the_reason(argv, message, capsys):
 def test_bad_team_and_messages_are_value_errors():
     env, params = registry.make("rware-tiny-2ag-v2")
     with pytest.raises(ValueError, match="unknown team 'greedy'"):
-        scripted.team_episodes(env, params, 1, team="greedy")
+        evaluation.team_episodes(env, params, 1, team="greedy")
     env, params = make_rware(2, msg_bits=1)
     with pytest.raises(ValueError, match="msg_bits > 0 is not supported"):
-        scripted.team_episodes(env, params, 1)
+        evaluation.team_episodes(env, params, 1)

@@ -17,6 +17,7 @@ how fast; compare ``eval_return`` with EPyMARL's tables for that.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -26,6 +27,8 @@ import numpy as np
 from flax import struct
 
 from wrl_jax.core.evaluation import FamilyEvaluation, SweepColumns, SweepMetric, TrainRate
+from wrl_jax.envs.rware.scripted import BLOCKED_EXPLORE, CROWD, EXPLORE, scripted_policy
+from wrl_jax.envs.rware.types import NUM_ACTIONS
 from wrl_jax.stats import mean_ci
 
 EVAL_SEED = 0
@@ -99,6 +102,27 @@ def evaluate_policy(greedy_action: GreedyFn, network_params: Any, env: Any, para
     """The periodic evaluation of one seed (jittable): the greedy team on the fixed episodes."""
     return run_episodes(lambda obs: greedy_action(network_params, obs), env, params, TRAINING_EPISODES,
                         horizon_of(env))
+
+
+@functools.partial(jax.jit, static_argnames=("env", "num_episodes", "horizon", "seed", "team"))
+def team_episodes(env: Any, params: Any, num_episodes: int = TRAINING_EPISODES, horizon: int | None = None,
+                  seed: int = EVAL_SEED, team: str = "scripted", explore: float | jax.Array = EXPLORE,
+                  blocked_explore: float | jax.Array = BLOCKED_EXPLORE, crowd: float | jax.Array = CROWD) -> RwareEval:
+    """The evaluation's fixed episodes (:func:`run_episodes`) with a team that sees the state.
+
+    ``team``: ``"scripted"`` (:func:`~wrl_jax.envs.rware.scripted.scripted_actions`, the family's yardstick) or
+    ``"random"`` (uniform over the 5 actions, the floor to compare with), on the same warehouses and
+    replacement draws as the greedy team's. ``horizon`` defaults to the evaluation's (rware's 500).
+    """
+    if team == "scripted":
+        policy = scripted_policy(env, params, explore, blocked_explore, crowd)
+    elif team == "random":
+        def policy(key, state):
+            return jax.random.randint(key, (env.num_agents,), 0, NUM_ACTIONS, dtype=jnp.int32)
+    else:
+        raise ValueError(f"unknown team {team!r}; known: scripted, random")
+    horizon = horizon_of(env) if horizon is None else horizon
+    return run_episodes(policy, env, params, num_episodes, horizon, seed, sees_state=True)
 
 
 def seed_summary(result: RwareEval) -> dict[str, jax.Array]:
@@ -192,9 +216,7 @@ def final_report(context: Any) -> dict[str, Any]:
     """After training: the scripted team (:mod:`~wrl_jax.envs.rware.scripted`, the family's yardstick) on the
     evaluation's episodes, the same warehouses and replacement draws the greedy team met; the report prints it
     beside the learned team's return."""
-    from wrl_jax.envs.rware import scripted
-
-    result = jax.device_get(scripted.team_episodes(context.env, context.params))
+    result = jax.device_get(team_episodes(context.env, context.params))
     returns = np.asarray(result.team_return, np.float64)
     return {"scripted": {"return": float(returns.mean()), "return_ci95": _interval(returns)["ci95"],
                          "deliveries": float(np.asarray(result.deliveries).sum(axis=-1).mean())}}

@@ -38,7 +38,6 @@ uniform random team 0.03 to 0.06.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -46,8 +45,7 @@ import jax
 import jax.numpy as jnp
 
 from wrl_jax.envs.rware.dynamics import TURN_LEFT, TURN_RIGHT, requested_mask
-from wrl_jax.envs.rware.evaluation import EVAL_SEED, TRAINING_EPISODES, RwareEval, horizon_of, run_episodes
-from wrl_jax.envs.rware.types import FORWARD, LEFT, NOOP, NUM_ACTIONS, RIGHT, TOGGLE_LOAD, RwareParams, RwareState
+from wrl_jax.envs.rware.types import FORWARD, LEFT, NOOP, RIGHT, TOGGLE_LOAD, RwareParams, RwareState
 
 FETCH, DELIVER, RETURN, PARK = range(4)
 """An agent's task (module docstring)."""
@@ -241,26 +239,6 @@ def scripted_actions(key: jax.Array, state: RwareState, params: RwareParams, env
 def scripted_policy(env: Any, params: RwareParams, explore: float | jax.Array = EXPLORE,
                     blocked_explore: float | jax.Array = BLOCKED_EXPLORE,
                     crowd: float | jax.Array = CROWD) -> Callable[[jax.Array, RwareState], jax.Array]:
-    """``policy(key, state) -> actions`` for :func:`~wrl_jax.envs.rware.evaluation.run_episodes` (``sees_state``)."""
+    """``policy(key, state) -> actions`` for :func:`~wrl_jax.envs.rware.evaluation.run_episodes` (``sees_state``);
+    :func:`~wrl_jax.envs.rware.evaluation.team_episodes` runs it on the evaluation's episodes."""
     return lambda key, state: scripted_actions(key, state, params, env, explore, blocked_explore, crowd)
-
-
-@functools.partial(jax.jit, static_argnames=("env", "num_episodes", "horizon", "seed", "team"))
-def team_episodes(env: Any, params: RwareParams, num_episodes: int = TRAINING_EPISODES, horizon: int | None = None,
-                  seed: int = EVAL_SEED, team: str = "scripted", explore: float | jax.Array = EXPLORE,
-                  blocked_explore: float | jax.Array = BLOCKED_EXPLORE, crowd: float | jax.Array = CROWD) -> RwareEval:
-    """The evaluation's fixed episodes (:func:`~wrl_jax.envs.rware.evaluation.run_episodes`) with a team.
-
-    ``team``: ``"scripted"`` (:func:`scripted_actions`) or ``"random"`` (uniform over the 5 actions, the
-    floor to compare with), on the same warehouses and replacement draws. ``horizon`` defaults to the
-    evaluation's (rware's 500).
-    """
-    if team == "scripted":
-        policy = scripted_policy(env, params, explore, blocked_explore, crowd)
-    elif team == "random":
-        def policy(key, state):
-            return jax.random.randint(key, (env.num_agents,), 0, NUM_ACTIONS, dtype=jnp.int32)
-    else:
-        raise ValueError(f"unknown team {team!r}; known: scripted, random")
-    horizon = horizon_of(env) if horizon is None else horizon
-    return run_episodes(policy, env, params, num_episodes, horizon, seed, sees_state=True)
