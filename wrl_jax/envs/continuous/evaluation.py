@@ -116,6 +116,10 @@ def evaluate_policy(greedy_action: GreedyFn, network_params: Any, env: Continuou
     return evaluate_episodes(act, env, params) if own is None else own(act, params)
 
 
+PURSUIT_FIELDS = ("success_rate", "mean_steps", "collisions_per_episode", "collision_free_rate")
+"""What a report keeps of the controller's :func:`summarize` (its return is not compared: no shaping there)."""
+
+
 def contract_env(env: ContinuousWarehouse, params: ContinuousParams) -> ContinuousWarehouse:
     """``env``'s map shape, rays, moving obstacles and item slots with nothing added: no extra observations, no
     safety stop, no shaping (``params`` only sizes it). What the yardstick drives, whatever view a learner had."""
@@ -149,8 +153,7 @@ def yardstick_report(env: ContinuousWarehouse, params: ContinuousParams) -> dict
     contract's lower bound and the strict bound, in steps per item (every item counts once)."""
     try:
         pursuit = summarize(jax.tree.map(lambda x: x[None], evaluate_pursuit(env, params)))
-        report = {"pursuit": {name: pursuit[name] for name in
-                              ("success_rate", "mean_steps", "collisions_per_episode", "collision_free_rate")}}
+        report = {"pursuit": {name: pursuit[name] for name in PURSUIT_FIELDS}}
     except ValueError as error:  # after training: say why, do not lose the run's report
         report = {"pursuit_unavailable": str(error)}
     if not bool(params.randomize):

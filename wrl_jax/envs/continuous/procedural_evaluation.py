@@ -29,8 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from wrl_jax.envs.continuous.evaluation import (EVAL_SEED, ContinuousEval, contract_env, rounds, run_episode,
-                                                summarize)
+from wrl_jax.envs.continuous.evaluation import (EVAL_SEED, PURSUIT_FIELDS, ContinuousEval, contract_env, rounds,
+                                                run_episode, summarize)
 from wrl_jax.envs.continuous.procedural_layouts import layout_params, pool_size, with_pool
 from wrl_jax.envs.procedural.layout_sets import LayoutSet, heldout_set, ood_sets, pad_items
 
@@ -211,8 +211,7 @@ def _yardstick(driven: list[np.ndarray], mine: np.ndarray, bounds: np.ndarray | 
     delivered, steps, ret, collisions, pickup_step = (x[None, None, mine] for x in driven)
     result = summarize(ContinuousEval(valid=np.ones_like(delivered), delivered=delivered, steps=steps,
                                       episode_return=ret, collisions=collisions, pickup_step=pickup_step))
-    out = {"pursuit": {name: result[name] for name in
-                       ("success_rate", "mean_steps", "collisions_per_episode", "collision_free_rate")}}
+    out = {"pursuit": {name: result[name] for name in PURSUIT_FIELDS}}
     if bounds is not None:
         out["bound_steps"] = float(bounds[mine].mean())
     return out
