@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from wrl_jax.envs.continuous.registration import make_continuous
+from wrl_jax.envs.procedural import load_map
 from wrl_jax.envs.warehouse.maps import WAREHOUSE_8X8, WAREHOUSE_12X12
 
 
@@ -49,7 +50,13 @@ def test_the_study_maps_take_the_contract_limits_and_other_layouts_name_theirs()
 
 @pytest.mark.parametrize("overrides, message", [
     ({"v_max": 0.0}, "v_max must be positive"),
-    ({"robot_radius": 0.6}, "does not fit a 1 m cell"),
+    ({"robot_radius": 0.6}, "robot_radius 0.6 does not fit a 1 m cell"),
+    ({"obstacle_radius": 0.5}, "obstacle_radius 0.5 does not fit a 1 m cell .* below 0.5"),
+    ({"collision_penalty": float("nan")}, "collision_penalty must be a finite number"),
+    ({"delivery_reward": float("inf")}, "delivery_reward must be a finite number"),
+    ({"actuation_noise": -0.1}, "actuation_noise is a standard deviation"),
+    ({"lidar_noise": -1e-3}, "lidar_noise is a standard deviation"),
+    ({"lidar_dropout": 2.0}, "lidar_dropout is a probability"),
     ({"gain_low": 1.3}, "gain range"),
     ({"lidar_rang": 3.0}, "unknown continuous warehouse setting"),
     ({"num_obstacles": 200}, "fewer than num_obstacles=200"),
@@ -67,7 +74,32 @@ def test_actions_of_the_wrong_shape_or_kind_are_refused(dynamic):
         env.step(jax.random.key(1), state, jnp.zeros(3), params)
     with pytest.raises(ValueError, match="two floats"):
         env.step(jax.random.key(1), state, np.array(["a", "b"]), params)
+    for action, message in ((jnp.zeros((1, 2)), r"shape \(2,\)"), (jnp.zeros((3, 2)), r"shape \(2,\)"),
+                            (jnp.zeros(2, bool), "two floats")):
+        with pytest.raises(ValueError, match=message):  # under jit too: shapes and dtypes are known when tracing
+            jax.jit(env.step).trace(jax.random.key(1), state, action, params)
     assert env.action_space(params).shape == (2,) and env.observation_space(params).shape == (43,)
+
+
+MAP_ROWS = ["....", ".@@.", "....", "...."]
+
+
+def test_map_files_and_movingai_layouts_build_the_same_environment_as_their_ascii_map(tmp_path):
+    """A MovingAI map (its cells given to ``load_map``), an ASCII map file's path and the ASCII text: one layout."""
+    ascii_map = "S . . 0\n. # # .\n. . . 1\n. . . G"
+    (tmp_path / "floor.txt").write_text(ascii_map)
+    (tmp_path / "floor.map").write_text("type octile\nheight 4\nwidth 4\nmap\n" + "\n".join(MAP_ROWS) + "\n")
+    movingai = load_map(tmp_path / "floor.map", start=(0, 0), goal=(3, 3), items=[(0, 3), (2, 3)])
+    built = [make_continuous(layout, max_steps=50)[1] for layout in (ascii_map, tmp_path / "floor.txt", movingai)]
+    for params in built[1:]:
+        for field in ("shelves", "start", "goal", "items", "num_items", "obstacle_cells"):
+            np.testing.assert_array_equal(getattr(params, field), getattr(built[0], field), err_msg=field)
+    padded = load_map(tmp_path / "floor.map", start=(0, 0), goal=(3, 3), items=[(0, 3)], max_shape=(6, 6))
+    assert make_continuous(padded, max_steps=50)[1].shelves.shape == (4, 4)  # cut to the map's own rows and columns
+    with pytest.raises(ValueError, match="no start, goal and items given"):
+        make_continuous(tmp_path / "floor.map", max_steps=50)
+    with pytest.raises(ValueError, match="layout is a Layout, an ASCII map"):
+        make_continuous(42, max_steps=50)
 
 
 def test_same_key_same_bits_other_keys_differ_and_obstacles_move(dynamic):

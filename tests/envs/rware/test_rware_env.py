@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import gymnasium as gym
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import fast_compile
@@ -102,6 +103,11 @@ def test_bad_actions_and_warehouses():
                             (np.array([0, 5], np.int32), "outside 0..4")):
         with pytest.raises(ValueError, match=message):  # checked before anything is traced
             env.transition(jax.random.key(1), None, action, params)
+    _, state = env.reset(jax.random.key(0), params)
+    for action, message in ((jnp.zeros(3, jnp.int32), "shape"), (jnp.zeros((1, 2), jnp.int32), "shape"),
+                            (jnp.zeros(2, jnp.float32), "integers"), (jnp.zeros(2, bool), "integers")):
+        with pytest.raises(ValueError, match=message):  # under jit too: shapes and dtypes are known when tracing
+            jax.jit(env.step).trace(jax.random.key(1), state, action, params)
     warehouse = pytest.importorskip("rware.warehouse")
     with pytest.raises(ValueError, match="reset"):
         from_rware(warehouse.Warehouse(3, 8, 1, 2, 0, 1, 2, None, 500, warehouse.RewardType.INDIVIDUAL))

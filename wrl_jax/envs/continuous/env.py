@@ -228,12 +228,9 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
 
     # ------------------------------------------------------------ checks and spaces
     def check_action(self, action: Any) -> None:
-        """A concrete action of the wrong shape or kind is refused; NaN is read as 0 and flagged (the contract)."""
-        if isinstance(action, jax.core.Tracer):
-            if action.shape[-1:] != (2,):
-                raise ValueError(f"a continuous warehouse action has shape (2,) (speed, turn), got {action.shape}")
-            return
-        array = np.asarray(action)
+        """An action of the wrong shape or kind is refused, traced or not (both are known when tracing); NaN is
+        read as 0 and flagged (the contract)."""
+        array = action if isinstance(action, jax.core.Tracer) else np.asarray(action)
         if array.shape != (2,):
             raise ValueError(f"a continuous warehouse action has shape (2,) (speed, turn), got shape {array.shape}")
         if array.dtype.kind not in "fiu":

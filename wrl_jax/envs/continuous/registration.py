@@ -6,6 +6,7 @@ names its own. Bad settings are refused here, before anything compiles, with the
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import jax.numpy as jnp
@@ -15,6 +16,8 @@ from wrl_jax.envs.continuous import geodesic
 from wrl_jax.envs.continuous.env import ContinuousWarehouse
 from wrl_jax.envs.continuous.safety import SAFETY_MARGIN
 from wrl_jax.envs.continuous.types import ContinuousParams
+from wrl_jax.envs.procedural.layout import PaddedLayout
+from wrl_jax.envs.procedural.movingai import load_map
 from wrl_jax.envs.warehouse import maps
 from wrl_jax.envs.warehouse.layout import Layout, parse
 
@@ -43,6 +46,7 @@ SHAPINGS = ("manhattan", "geodesic")
 """The shaping term's distance: the contract's, or around the shelves (:mod:`.geodesic`)."""
 
 POSITIVE = ("dt", "v_max", "w_max", "robot_radius", "reach_radius", "lidar_range", "obstacle_radius")
+REWARDS = ("step_penalty", "collision_penalty", "shaping_coef", "pickup_reward", "delivery_reward")
 
 
 def obstacle_cells(layout: Layout) -> np.ndarray:
@@ -53,12 +57,36 @@ def obstacle_cells(layout: Layout) -> np.ndarray:
     return ~np.asarray(layout.shelves, bool) & far & not_goal
 
 
-def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_rays: int = 32,
+def as_layout(layout: Layout | str | os.PathLike | PaddedLayout) -> Layout:
+    """The grid :class:`Layout` of what :func:`make_continuous` accepts: a layout, an ASCII map, a map file's path
+    (:func:`~wrl_jax.envs.procedural.load_map`: ASCII, or MovingAI where it has its cells) or one
+    :class:`PaddedLayout` (what ``load_map(path, key=...)`` gives for a MovingAI map), cut to its real rows and
+    columns."""
+    if isinstance(layout, Layout):
+        return layout
+    if isinstance(layout, str):
+        return parse(layout)
+    if isinstance(layout, os.PathLike):
+        layout = load_map(layout)
+    if isinstance(layout, PaddedLayout):
+        if np.ndim(layout.blocked) != 2:
+            raise ValueError(f"make_continuous takes one layout; got a batch of shape {np.shape(layout.blocked)[:-2]} "
+                             "(pick one, e.g. wrl_jax.envs.continuous.procedural_layouts.slot_layout(pool, i))")
+        height, width, count = int(layout.height), int(layout.width), int(layout.num_items)
+        return Layout(shelves=np.asarray(layout.blocked, bool)[:height, :width],
+                      start=np.asarray(layout.start, np.int32), goal=np.asarray(layout.goal, np.int32),
+                      items=np.asarray(layout.items, np.int32)[:count])
+    raise ValueError(f"a continuous warehouse's layout is a Layout, an ASCII map, a map file's path or a "
+                     f"PaddedLayout; got {type(layout).__name__}")
+
+
+def make_continuous(layout: Layout | str | os.PathLike | PaddedLayout, *, max_steps: int | None = None, num_rays: int = 32,
                     num_obstacles: int = 0, name: str = "Continuous-Warehouse", shaping: str = "manhattan",
                     observe_target: bool = False, observe_route: bool = False, observe_obstacles: bool = False,
                     safety_stop: bool = False, safety_margin: float | None = None,
                     **overrides: Any) -> tuple[ContinuousWarehouse, ContinuousParams]:
-    """``(env, params)`` for ``layout`` (a :class:`Layout` or an ASCII map of SPEC.md).
+    """``(env, params)`` for ``layout``: a :class:`Layout`, an ASCII map of SPEC.md, a map file's path or a
+    MovingAI map loaded by ``load_map`` (:func:`as_layout`).
 
     ``shaping="geodesic"`` measures the shaping term's distance around the shelves instead of the
     contract's Manhattan distance (:mod:`wrl_jax.envs.continuous.geodesic`); ``observe_target=True``
@@ -71,12 +99,13 @@ def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_r
 
     Raises:
         ValueError: naming the problem: an unknown override or shaping, a non-positive length or speed, a
-            ``max_steps`` missing for a layout other than the study's, too few cells for the
-            obstacles, a gain range that is not ``0 < low <= high``, ``observe_route`` without
+            radius that does not fit a cell, a reward constant that is not finite, a negative noise, a
+            dropout outside ``[0, 1]``, a ``max_steps`` missing for a layout other than the study's, too few
+            cells for the obstacles, a gain range that is not ``0 < low <= high``, ``observe_route`` without
             geodesic shaping, a ``safety_stop`` with ``randomize``, or a ``safety_margin`` out of
             ``[0, 1)`` or without ``safety_stop``.
     """
-    layout = parse(layout) if isinstance(layout, str) else layout
+    layout = as_layout(layout)
     unknown = sorted(set(overrides) - set(DEFAULTS))
     if unknown:
         raise ValueError(f"unknown continuous warehouse setting(s) {unknown}; known: {sorted(DEFAULTS)}")
@@ -95,8 +124,17 @@ def make_continuous(layout: Layout | str, *, max_steps: int | None = None, num_r
     if not 0 < float(settings["gain_low"]) <= float(settings["gain_high"]):
         raise ValueError(f"the gain range must be 0 < gain_low <= gain_high, got "
                          f"{settings['gain_low']!r}..{settings['gain_high']!r}")
-    if not float(settings["robot_radius"]) < 0.5:
-        raise ValueError(f"robot_radius {settings['robot_radius']!r} does not fit a 1 m cell (at most 0.5)")
+    for field in ("robot_radius", "obstacle_radius"):
+        if not float(settings[field]) < 0.5:
+            raise ValueError(f"{field} {settings[field]!r} does not fit a 1 m cell (it must be below 0.5)")
+    for field in REWARDS:
+        if not np.isfinite(float(settings[field])):
+            raise ValueError(f"{field} must be a finite number, got {settings[field]!r}")
+    for field in ("actuation_noise", "lidar_noise"):
+        if not float(settings[field]) >= 0:
+            raise ValueError(f"{field} is a standard deviation: it must be >= 0, got {settings[field]!r}")
+    if not 0 <= float(settings["lidar_dropout"]) <= 1:
+        raise ValueError(f"lidar_dropout is a probability: it must lie in [0, 1], got {settings['lidar_dropout']!r}")
     if not 0 <= float(settings["start_jitter"]) <= 0.5 - float(settings["robot_radius"]):
         raise ValueError(f"start_jitter must lie in [0, 0.5 - robot_radius] so that every randomized start is "
                          f"collision-free in the start cell, got {settings['start_jitter']!r}")

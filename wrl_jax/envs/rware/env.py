@@ -211,16 +211,18 @@ class Rware(Environment[RwareState, RwareParams]):
         return time_up | idle
 
     def check_action(self, action: Any) -> None:
-        """Raise ``ValueError`` for a concrete action of the wrong shape, dtype or range (no-op on tracers)."""
-        if isinstance(action, jax.core.Tracer):
-            return
-        array = np.asarray(action)
+        """Raise ``ValueError`` for an action of the wrong shape or dtype (traced or not: both are known when
+        tracing) or, for a concrete one, out of range."""
+        traced = isinstance(action, jax.core.Tracer)
+        array = action if traced else np.asarray(action)
         shape = (self.num_agents, 1 + self.msg_bits) if self.msg_bits else (self.num_agents,)
         if array.shape != shape:
             what = "an action and its message bits" if self.msg_bits else "one action"
             raise ValueError(f"action must have shape {shape}, {what} per agent; got shape {array.shape}")
         if not np.issubdtype(array.dtype, np.integer):
             raise ValueError(f"action must be integers; got dtype {array.dtype}")
+        if traced:
+            return
         moves = array[:, 0] if self.msg_bits else array
         bad = np.flatnonzero((moves < 0) | (moves >= NUM_ACTIONS))
         if bad.size:
