@@ -14,8 +14,10 @@ environment on every side alike; the comparison was measured without it), seeds 
   each: both cores, as ours uses them; two threads in one process oversubscribe a shared 2-core machine,
   see ``bench/sb3_dqn.py``).
 - **sbx** (``--libraries sbx``): SB3's loop with its networks and updates in JAX (``sbx.SAC``), the same
-  adapter and vector environment, its seeds one after another in one process (XLA spreads its work over
-  the cores, as ours). It is not in the test extras; its venv reuses this
+  adapter and vector environment, its seeds one after another in a process of its own started with the
+  ``XLA_FLAGS`` this command was given (XLA's defaults unless you set some: not our optimization level, not
+  our split of the CPU into host devices, which would slow its programs; XLA spreads its work over the
+  cores). It is not in the test extras; its venv reuses this
   project's packages (it asks for nothing they conflict with)::
 
       python3 -m venv /tmp/sbx-venv
@@ -234,7 +236,7 @@ def library_policy(model, library: str):
 def train_library_seeds(config, env_name: str, seeds: list[int], eval_every_steps: int, target: float,
                         library: str, torch_threads: int) -> list[dict[str, Any]]:
     """SB3's SAC (``library="sb3"``) or sbx's (its JAX port) on ``seeds``, one after another, on the
-    Gymnasium adapter; runs in a process of its own when seeds are split over processes."""
+    Gymnasium adapter; runs in a process of its own (sbx always, SB3 when seeds are split over processes)."""
     import gymnasium as gym
     import torch
     from stable_baselines3.common.callbacks import BaseCallback
@@ -243,7 +245,8 @@ def train_library_seeds(config, env_name: str, seeds: list[int], eval_every_step
     from wrl_jax.cli.machine import DEFAULT_XLA_OPT_LEVEL, apply_xla_opt_level
     from wrl_jax.wrappers.gymnasium_continuous import ContinuousGymEnv
 
-    apply_xla_opt_level(DEFAULT_XLA_OPT_LEVEL)  # a spawned process starts without it (the evaluation is JAX)
+    if library == "sb3":  # SB3's spawned processes evaluate with JAX; sbx's keeps XLA as its user has it
+        apply_xla_opt_level(DEFAULT_XLA_OPT_LEVEL)
     if torch_threads > 0:
         torch.set_num_threads(torch_threads)
     if library == "sb3":
@@ -251,6 +254,7 @@ def train_library_seeds(config, env_name: str, seeds: list[int], eval_every_step
     else:
         from sbx import SAC as LibrarySAC
     scale = float(config.reward_scale)
+    parent = os.getppid()
 
     def make_env():
         return gym.wrappers.TransformReward(ContinuousGymEnv(env_name, **env_view(env_name)), lambda r: scale * r)
@@ -266,6 +270,8 @@ def train_library_seeds(config, env_name: str, seeds: list[int], eval_every_step
             self.t0 = time.perf_counter()
 
         def _on_step(self) -> bool:
+            if os.getppid() != parent:  # the bench was stopped: a spawned worker does not train on alone
+                raise SystemExit(f"{library}: the bench that started this process has ended")
             if self.num_timesteps < self.next_eval:
                 return True
             self.next_eval += eval_every_steps
@@ -282,6 +288,11 @@ def train_library_seeds(config, env_name: str, seeds: list[int], eval_every_step
                 return False
             return True
 
+    if library == "sbx":
+        import jax
+
+        print(f"  sbx's process: {jax.device_count()} XLA device(s), XLA_FLAGS={os.environ.get('XLA_FLAGS', '')!r}",
+              flush=True)
     per_seed = []
     for seed in seeds:
         venv = DummyVecEnv([make_env for _ in range(config.num_envs)])
@@ -298,21 +309,29 @@ def train_library_seeds(config, env_name: str, seeds: list[int], eval_every_step
 
 
 def run_library(config, env_name: str, seeds: list[int], eval_every_steps: int, target: float, library: str,
-                processes: int, torch_threads: int) -> dict[str, Any]:
+                processes: int, torch_threads: int, user_xla_flags: str) -> dict[str, Any]:
     """The library's seeds split over ``processes`` processes (seed ``i`` to process ``i mod processes``), one
-    PyTorch thread each by default: with 2 on this 2-core machine it uses both cores, as ours does. Its wall is the
+    PyTorch thread each by default: with 2 on this 2-core machine it uses both cores, as ours does. sbx runs in a
+    spawned process even alone, with ``user_xla_flags`` (this process's XLA was set for ours). Its wall is the
     slowest process's time in setup and training (evaluations excluded)."""
     groups = [seeds[i::processes] for i in range(processes) if seeds[i::processes]]
     args = (config, env_name)
     tail = (eval_every_steps, target, library, torch_threads)
-    if len(groups) == 1:
+    if len(groups) == 1 and library == "sb3":
         results = [train_library_seeds(*args, groups[0], *tail)]
     else:
         import concurrent.futures
         import multiprocessing
 
-        with concurrent.futures.ProcessPoolExecutor(len(groups), mp_context=multiprocessing.get_context("spawn")) as pool:
-            results = list(pool.map(train_library_seeds, *zip(*[(*args, g, *tail) for g in groups])))
+        ours = os.environ.get("XLA_FLAGS", "")
+        if library == "sbx":  # a spawned process copies the environment as it starts
+            os.environ["XLA_FLAGS"] = user_xla_flags
+        try:
+            with concurrent.futures.ProcessPoolExecutor(len(groups),
+                                                        mp_context=multiprocessing.get_context("spawn")) as pool:
+                results = list(pool.map(train_library_seeds, *zip(*[(*args, g, *tail) for g in groups])))
+        finally:
+            os.environ["XLA_FLAGS"] = ours
     per_seed = sorted((s for group in results for s in group), key=lambda s: s["seed"])
     wall = max(sum(s["setup_seconds"] + s["train_seconds"] for s in group) for group in results)
     return {
@@ -344,7 +363,8 @@ def main() -> int:
                         help="the other side(s): sb3 (the test extras have it), sbx (its own venv, see the docstring)")
     parser.add_argument("--skip-ours", action="store_true", help="only the libraries")
     parser.add_argument("--library-processes", type=int, default=2,
-                        help="processes SB3's seeds are split over (default 2: both cores; sbx uses one, XLA threads)")
+                        help="processes SB3's seeds are split over (default 2: both cores; sbx uses one process of "
+                             "its own, XLA threads)")
     parser.add_argument("--torch-threads", type=int, default=1,
                         help="PyTorch intra-op threads per process for SB3 (0 keeps PyTorch's default)")
     parser.add_argument("--devices", type=int, default=None,
@@ -357,6 +377,7 @@ def main() -> int:
     from wrl_jax.cli.machine import (DEFAULT_XLA_OPT_LEVEL, apply_xla_opt_level, auto_devices,
                                      xla_flags_with_host_devices)
 
+    user_xla_flags = os.environ.get("XLA_FLAGS", "")  # sbx's process gets these, not ours
     apply_xla_opt_level(DEFAULT_XLA_OPT_LEVEL)  # as train_sac.py does, and its split of the CPU
     devices = 1 if args.skip_ours else args.devices  # --skip-ours: the libraries alone, on the CPU as it is
     if devices is None:
@@ -412,7 +433,9 @@ def main() -> int:
         print(f"{library}: {len(seeds)} seeds over {processes} process(es), up to "
               f"{config.total_timesteps:,} steps each", flush=True)
         side = record[library] = run_library(config, args.env, seeds, eval_steps, args.target, library,
-                                             processes, args.torch_threads)
+                                             processes, args.torch_threads, user_xla_flags)
+        if library == "sbx":
+            side["xla_flags"] = user_xla_flags
         side["achieved_gflops"] = record["flops_per_env_step"] * sum(
             s["env_steps"] for s in side["per_seed"]) / side["train_seconds"] / 1e9
         if "ours" in record:
