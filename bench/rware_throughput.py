@@ -7,24 +7,30 @@
 
 Ours: ``jit(lax.scan(vmap(env.step)))`` over ``T`` steps of ``B`` environments (auto-reset included), uniform
 random actions drawn before the timed call (:func:`actions_before`), as rware's are, our per-environment keys
-split inside it as a user's loop splits them, compile time measured apart
-(``lower().compile()``), one warm-up call, then the best of ``--repeats`` timed calls (``block_until_ready``).
-rware: ``Warehouse.step`` in a Python loop, one environment, the same random policy (actions drawn beforehand),
-reset when done. Jumanji (its own virtual environment: ``python -m venv /tmp/jumanji-venv &&
-/tmp/jumanji-venv/bin/pip install jumanji``): its ``RobotWarehouse`` with the same layout, agents, sensor range
-and queue, behind ``AutoResetWrapper``, timed as ours, in a child process of that interpreter. Jumanji's
-warehouse is not rware's rules (agents move one after another, an episode ends on a collision, rewards are
-shared): a speed reference only.
+split inside it as a user's loop splits them, compile time measured apart (``lower().compile()``), two warm-up
+calls, then the median of ``--repeats`` timings, each of as many consecutive calls (``block_until_ready`` after
+each) as fill at least ``MIN_TIMING_SECONDS``. rware: ``Warehouse.step`` in a Python loop, one environment, the
+same random policy (actions drawn beforehand), reset when done, the median of ``--repeats`` loops of
+``--seconds``, in a process of its own without JAX. The ratio to rware comes from ``--pairs`` timings of the two
+alternated (ours at its best batch of the table), since the machine's speed drifts within a run.
+
+Jumanji (its own virtual environment: ``python -m venv /tmp/jumanji-venv && /tmp/jumanji-venv/bin/pip install
+jumanji==1.1.2``): its ``RobotWarehouse`` with the same layout, agents, sensor range and queue, behind
+``AutoResetWrapper``, timed as ours, in a child process of that interpreter. Jumanji's warehouse is not rware's
+rules (agents move one after another, an episode ends on a collision, rewards are shared): a speed reference only.
 
 Ours is the default ``tie_order="set"`` (ties between equal chains in unpatched rware's order); the same
 batch is also timed with ``tie_order="insertion"``, alternated, to say what the exact order costs.
-``--profile`` times variants of our step with one part left out, at one batch size, to say what bounds it. Results: ``--out``/throughput.json and throughput.md; every ratio is from the same run.
+``--profile`` times variants of our step with one part left out, at one batch size, to say what bounds it.
+Results: ``--out``/throughput.json and throughput.md; every ratio is from the same run.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import statistics
 import platform
 import subprocess
 import sys
@@ -35,6 +41,9 @@ SIZES = {"rware-tiny-4ag-v2": (1, 3, 4, 4), "rware-small-4ag-v2": (2, 3, 4, 4)}
 """id -> (shelf_rows, shelf_columns, agents, request queue): also what Jumanji's generator is given."""
 TARGET_ENV_STEPS = 1 << 16
 """Environment steps per timed call (``T = TARGET / B``, kept within 4 .. 4096); the batch is reset before."""
+MIN_TIMING_SECONDS = 1.0
+"""Each timing spans at least this long (consecutive calls of one compiled scan): a call of 20 ms is at the mercy of
+the scheduler, and a best of a few such calls flatters a side against rware's loop of seconds."""
 MEMORY_LIMIT_BYTES = 8 << 30
 """Skip a batch whose carried state and observations would exceed this (a rough bound)."""
 
@@ -43,8 +52,9 @@ def steps_for(batch: int) -> int:
     return max(4, min(4096, TARGET_ENV_STEPS // batch))
 
 
-def time_scan(make_scan, batch: int, agents: int, repeats: int) -> dict:
-    """Compile, warm up and time ``make_scan(batch, steps) -> (jitted fn, args)``; agent-steps per second."""
+def compile_scan(make_scan, batch: int) -> tuple:
+    """``make_scan(batch, steps) -> (jitted fn, args)`` compiled and warmed up: ``(compiled, args, steps,
+    compile seconds, calls)``, where ``calls`` consecutive calls fill at least ``MIN_TIMING_SECONDS``."""
     import jax
 
     steps = steps_for(batch)
@@ -53,13 +63,29 @@ def time_scan(make_scan, batch: int, agents: int, repeats: int) -> dict:
     compiled = fn.lower(*args).compile()
     compile_s = time.perf_counter() - t0
     jax.block_until_ready(compiled(*args))
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
+    t0 = time.perf_counter()
+    jax.block_until_ready(compiled(*args))
+    return compiled, args, steps, compile_s, max(1, math.ceil(MIN_TIMING_SECONDS / (time.perf_counter() - t0)))
+
+
+def seconds_per_call(compiled, args, calls: int) -> float:
+    """One timing: ``calls`` consecutive calls, each waited for."""
+    import jax
+
+    t0 = time.perf_counter()
+    for _ in range(calls):
         jax.block_until_ready(compiled(*args))
-        best = min(best, time.perf_counter() - t0)
-    return {"batch": batch, "steps": steps, "compile_s": round(compile_s, 3), "seconds": round(best, 4),
-            "agent_steps_per_s": batch * steps * agents / best}
+    return (time.perf_counter() - t0) / calls
+
+
+def time_scan(make_scan, batch: int, agents: int, repeats: int) -> dict:
+    """Compile, warm up and time ``make_scan(batch, steps) -> (jitted fn, args)``; agent-steps per second."""
+    compiled, args, steps, compile_s, calls = compile_scan(make_scan, batch)
+    per_call = [seconds_per_call(compiled, args, calls) for _ in range(repeats)]
+    work = batch * steps * agents
+    return {"batch": batch, "steps": steps, "compile_s": round(compile_s, 3), "calls_per_timing": calls,
+            "seconds": round(statistics.median(per_call), 5), "agent_steps_per_s": work / statistics.median(per_call),
+            "agent_steps_per_s_best": work / min(per_call), "agent_steps_per_s_worst": work / max(per_call)}
 
 
 def ours_scan(env, params):
@@ -140,10 +166,10 @@ def bench_tie_orders(name: str, batch: int, repeats: int) -> dict:
         for order in speeds:
             env, params = wrl_jax.make(name, tie_order=order)
             speeds[order].append(time_scan(ours_scan(env, params), batch, env.num_agents, repeats)["agent_steps_per_s"])
-    best = {order: max(values) for order, values in speeds.items()}
-    print(f"  ours {name} B={batch}: tie_order set {best['set']:,.0f}, insertion {best['insertion']:,.0f} "
+    middle = {order: statistics.median(values) for order, values in speeds.items()}
+    print(f"  ours {name} B={batch}: tie_order set {middle['set']:,.0f}, insertion {middle['insertion']:,.0f} "
           f"agent-steps/s", flush=True)
-    return {"batch": batch, "agent_steps_per_s": best, "set_over_insertion": best["set"] / best["insertion"]}
+    return {"batch": batch, "agent_steps_per_s": middle, "set_over_insertion": middle["set"] / middle["insertion"]}
 
 
 def bench_ours(name: str, batches: list[int], repeats: int) -> list[dict]:
@@ -161,8 +187,34 @@ def bench_ours(name: str, batches: list[int], repeats: int) -> list[dict]:
     return rows
 
 
-def bench_rware(name: str, seconds: float) -> dict:
-    """rware's Python step on one environment, uniform random actions, reset when done."""
+def paired(name: str, batch: int, seconds: float, pairs: int) -> dict:
+    """Ours at ``batch`` and rware's loop timed one after the other, ``pairs`` times: the machine's speed drifts
+    within a run by tens of percent, which moves both timings of a pair alike, so the median of the pairs' ratios
+    is the comparison (the tables' medians are each taken minutes apart)."""
+    import wrl_jax
+
+    env, params = wrl_jax.make(name)
+    compiled, args, steps, _, calls = compile_scan(ours_scan(env, params), batch)
+    ours, theirs = [], []
+    for _ in range(pairs):
+        ours.append(batch * steps * env.num_agents / seconds_per_call(compiled, args, calls))
+        theirs.append(bench_rware(name, seconds, 1)["agent_steps_per_s"])
+    ratios = [a / b for a, b in zip(ours, theirs)]
+    return {"batch": batch, "pairs": pairs, "ours": ours, "rware": theirs, "ratios": ratios,
+            "median_ratio": statistics.median(ratios)}
+
+
+def bench_rware(name: str, seconds: float, repeats: int) -> dict:
+    """:func:`rware_child` in a fresh process of this interpreter: rware's loop never shares a process with JAX (whose
+    CPU threads, started by our timings, may take time from the Python loop)."""
+    args = [sys.executable, __file__, "--rware-child", name, "--seconds", str(seconds), "--repeats", str(repeats)]
+    done = subprocess.run(args, capture_output=True, text=True, timeout=600, check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def rware_child(name: str, seconds: float, repeats: int) -> dict:
+    """rware's Python step on one environment, uniform random actions, reset when done: the median of ``repeats``
+    loops of ``seconds``."""
     import gymnasium as gym
     import numpy as np
     import rware  # noqa: F401  (registers rware's ids)
@@ -170,22 +222,26 @@ def bench_rware(name: str, seconds: float) -> dict:
     env = gym.make(name, disable_env_checker=True).unwrapped
     env.reset(seed=0)
     actions = np.random.default_rng(0).integers(0, 5, (100_000, env.n_agents)).tolist()
-    steps, t0 = 0, time.perf_counter()
-    while time.perf_counter() - t0 < seconds:
-        for a in actions[steps % 90_000: steps % 90_000 + 100]:
-            _, _, done, _, _ = env.step(a)
-            if done:
-                env.reset()
-        steps += 100
-    elapsed = time.perf_counter() - t0
-    return {"steps": steps, "seconds": round(elapsed, 3), "agent_steps_per_s": steps * env.n_agents / elapsed}
+    rates, steps = [], 0
+    for _ in range(repeats):
+        start, t0 = steps, time.perf_counter()
+        while time.perf_counter() - t0 < seconds:
+            for a in actions[steps % 90_000: steps % 90_000 + 100]:
+                _, _, done, _, _ = env.step(a)
+                if done:
+                    env.reset()
+            steps += 100
+        rates.append((steps - start) * env.n_agents / (time.perf_counter() - t0))
+    return {"steps": steps, "seconds_per_timing": seconds, "timings": repeats,
+            "agent_steps_per_s": statistics.median(rates), "agent_steps_per_s_best": max(rates),
+            "agent_steps_per_s_worst": min(rates)}
 
 
 def bench_jumanji(python: str, name: str, batches: list[int], repeats: int) -> list[dict] | str:
     """Jumanji's RobotWarehouse, in a child process of its own interpreter; the reason when it cannot run."""
     if not Path(python).exists():
         return f"no interpreter at {python} (install: python -m venv /tmp/jumanji-venv && " \
-               f"/tmp/jumanji-venv/bin/pip install jumanji)"
+               f"/tmp/jumanji-venv/bin/pip install jumanji==1.1.2)"
     args = [python, __file__, "--jumanji-child", name, "--repeats", str(repeats), "--batch-sizes", *map(str, batches)]
     done = subprocess.run(args, capture_output=True, text=True, timeout=900, check=False)
     if done.returncode != 0:
@@ -306,13 +362,19 @@ def profile(name: str, batch: int, repeats: int) -> dict:
             "labels": dict(PROFILE_VARIANTS), "actions_us": action_cost(n, batch, repeats)}
 
 
-NOTES = ("Notes. Ours: `jit(lax.scan(vmap(env.step)))`, auto-reset included, compile time apart (in the JSON), "
-         "best of the timed calls; the random actions are drawn before each timed call, for rware and Jumanji alike "
+NOTES = ("Notes. Every number is a median of timings of at least a second each (ours and Jumanji's: consecutive "
+         "calls of one compiled scan; rware's: loops of `--seconds`); the JSON has the best and worst beside it. "
+         "The machine's speed drifts within a run by tens of percent, so the ratio to rware is taken from timings "
+         "of the two alternated (`--pairs`, ours at its best batch of the table): the median of the pairs' ratios, "
+         "with their range. "
+         "Ours: `jit(lax.scan(vmap(env.step)))`, auto-reset included, compile time apart (in the JSON); "
+         "the random actions are drawn before each timed call, for rware and Jumanji alike "
          "(what drawing them inside costs is under the profile when it was run); our per-environment keys are split "
          "inside each step of the timed call, as a user's loop splits them (rware and Jumanji advance their own "
          "generators inside their steps). "
-         "rware: its Python `Warehouse.step`, one environment, reset when done. "
-         "Jumanji: `python -m venv /tmp/jumanji-venv && /tmp/jumanji-venv/bin/pip install jumanji`, its "
+         "rware: its Python `Warehouse.step`, one environment, reset when done, in a process of its own without "
+         "JAX. "
+         "Jumanji: `python -m venv /tmp/jumanji-venv && /tmp/jumanji-venv/bin/pip install jumanji==1.1.2`, its "
          "`RobotWarehouse` (same layout, agents, sensor range, queue) behind `AutoResetWrapper`, timed as ours; "
          "its rules are not rware's (agents move one after another, a collision ends the episode, rewards are "
          "shared), so it is a speed reference only. One CPU run on a shared machine: expect noise of tens of "
@@ -325,7 +387,7 @@ def markdown(report: dict) -> str:
     lines = [f"# RWARE throughput ({report['date']}, {report['machine']})", "",
              f"`{report['command']}`", "", "Agent-steps per second (environment steps x 4 agents), random actions.",
              "", ("| id | " + " | ".join(f"ours B={b}" for b in batches)
-                  + " | rware (Python, 1 env) | ours best / rware | Jumanji best |"),
+                  + " | rware (Python, 1 env) | ours / rware, alternated | Jumanji at its best batch |"),
              "|---|" + "---|" * (len(batches) + 3)]
     for name, entry in report["ids"].items():
         by_batch = {row["batch"]: row for row in entry["ours"]}
@@ -335,8 +397,12 @@ def markdown(report: dict) -> str:
         jumanji = entry["jumanji"]
         jumanji_best = (f"{max(r['agent_steps_per_s'] for r in jumanji['rows']):,.0f}"
                         if isinstance(jumanji, dict) else "not run")
+        pairs = entry.get("paired")
+        ratio = (f"**{pairs['median_ratio']:,.0f}x** ({min(pairs['ratios']):,.0f}-{max(pairs['ratios']):,.0f}x over "
+                 f"{pairs['pairs']} pairs at B={pairs['batch']})" if pairs
+                 else f"{best / entry['rware']['agent_steps_per_s']:,.0f}x")
         lines.append(f"| {name} | {' | '.join(cells)} | {entry['rware']['agent_steps_per_s']:,.0f} | "
-                     f"{best / entry['rware']['agent_steps_per_s']:,.0f}x | {jumanji_best} |")
+                     f"{ratio} | {jumanji_best} |")
     for name, entry in report["ids"].items():
         if isinstance(entry["jumanji"], dict):
             lines += ["", f"Jumanji {entry['jumanji']['jumanji']} RobotWarehouse, layout of {name}: " + ", ".join(
@@ -368,8 +434,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ids", nargs="+", default=list(SIZES))
     parser.add_argument("--batch-sizes", nargs="+", type=int, default=[1, 32, 1024, 4096, 32768])
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--seconds", type=float, default=3.0, help="rware's timed Python loop, per id")
+    parser.add_argument("--repeats", type=int, default=5, help="timings per configuration (the median is kept)")
+    parser.add_argument("--seconds", type=float, default=2.0, help="each of rware's timed Python loops, per id")
+    parser.add_argument("--pairs", type=int, default=7,
+                        help="timings of ours (at its best batch) and rware alternated, per id: the headline ratio")
     parser.add_argument("--jumanji-python", default="/tmp/jumanji-venv/bin/python")
     parser.add_argument("--profile", action="store_true", help="time the parts of our step at --profile-batch")
     parser.add_argument("--profile-batch", type=int, default=1024)
@@ -378,6 +446,7 @@ def main() -> None:
     parser.add_argument("--tie-orders", nargs="+", metavar="ID",
                         help="only time tie_order 'set' against 'insertion' on these rware ids, at --profile-batch")
     parser.add_argument("--jumanji-child", help=argparse.SUPPRESS)
+    parser.add_argument("--rware-child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.tie_orders:
         rows = {name: bench_tie_orders(name, args.profile_batch, args.repeats) for name in args.tie_orders}
@@ -385,6 +454,9 @@ def main() -> None:
         return
     if args.markdown_only:
         (args.out / "throughput.md").write_text(markdown(json.loads((args.out / "throughput.json").read_text())))
+        return
+    if args.rware_child:
+        print(json.dumps(rware_child(args.rware_child, args.seconds, args.repeats)))
         return
     if args.jumanji_child:
         jumanji_child(args.jumanji_child, args.batch_sizes, args.repeats)
@@ -399,9 +471,13 @@ def main() -> None:
               "jax": jax.__version__, "ids": {}}
     for name in args.ids:
         print(name, flush=True)
-        entry = {"ours": bench_ours(name, args.batch_sizes, args.repeats), "rware": bench_rware(name, args.seconds),
+        entry = {"ours": bench_ours(name, args.batch_sizes, args.repeats), "rware": bench_rware(name, args.seconds, args.repeats),
                  "tie_orders": bench_tie_orders(name, args.profile_batch, args.repeats)}
         print(f"  rware {name}: {entry['rware']['agent_steps_per_s']:,.0f} agent-steps/s", flush=True)
+        best = max((row for row in entry["ours"] if "skipped" not in row), key=lambda row: row["agent_steps_per_s"])
+        entry["paired"] = paired(name, best["batch"], args.seconds, args.pairs)
+        print(f"  ours / rware alternated at B={best['batch']}: median {entry['paired']['median_ratio']:,.0f}x "
+              f"({min(entry['paired']['ratios']):,.0f}-{max(entry['paired']['ratios']):,.0f}x)", flush=True)
         entry["jumanji"] = bench_jumanji(args.jumanji_python, name, args.batch_sizes, args.repeats)
         print(f"  jumanji {name}: {entry['jumanji'] if isinstance(entry['jumanji'], str) else 'done'}", flush=True)
         report["ids"][name] = entry
