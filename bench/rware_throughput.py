@@ -471,7 +471,8 @@ def main() -> None:
               "jax": jax.__version__, "ids": {}}
     for name in args.ids:
         print(name, flush=True)
-        entry = {"ours": bench_ours(name, args.batch_sizes, args.repeats), "rware": bench_rware(name, args.seconds, args.repeats),
+        entry = {"ours": bench_ours(name, args.batch_sizes, args.repeats),
+                 "rware": bench_rware(name, args.seconds, args.repeats),
                  "tie_orders": bench_tie_orders(name, args.profile_batch, args.repeats)}
         print(f"  rware {name}: {entry['rware']['agent_steps_per_s']:,.0f} agent-steps/s", flush=True)
         best = max((row for row in entry["ours"] if "skipped" not in row), key=lambda row: row["agent_steps_per_s"])

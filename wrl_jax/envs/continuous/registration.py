@@ -80,8 +80,9 @@ def as_layout(layout: Layout | str | os.PathLike | PaddedLayout) -> Layout:
                      f"PaddedLayout; got {type(layout).__name__}")
 
 
-def make_continuous(layout: Layout | str | os.PathLike | PaddedLayout, *, max_steps: int | None = None, num_rays: int = 32,
-                    num_obstacles: int = 0, name: str = "Continuous-Warehouse", shaping: str = "manhattan",
+def make_continuous(layout: Layout | str | os.PathLike | PaddedLayout, *, max_steps: int | None = None,
+                    num_rays: int = 32, num_obstacles: int = 0, name: str = "Continuous-Warehouse",
+                    shaping: str = "manhattan",
                     observe_target: bool = False, observe_route: bool = False, observe_obstacles: bool = False,
                     safety_stop: bool = False, safety_margin: float | None = None,
                     **overrides: Any) -> tuple[ContinuousWarehouse, ContinuousParams]:
