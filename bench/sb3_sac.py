@@ -17,7 +17,8 @@ environment on every side alike; the comparison was measured without it), seeds 
   adapter and vector environment, its seeds one after another in a process of its own started with the
   ``XLA_FLAGS`` this command was given (XLA's defaults unless you set some: not our optimization level, not
   our split of the CPU into host devices, which would slow its programs; XLA spreads its work over the
-  cores). It is not in the test extras; its venv reuses this
+  cores; it compiles our environment behind the adapter at that level too, a few seconds of its setup). It is not
+  in the test extras; its venv reuses this
   project's packages (it asks for nothing they conflict with)::
 
       python3 -m venv /tmp/sbx-venv

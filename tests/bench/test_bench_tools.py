@@ -156,3 +156,20 @@ def test_periodic_evaluations_merge_runs_count_solved_seeds_and_refuse_mixed_vie
     assert summarize([first, second], from_steps=0)["solved"] == {"8": 2, "16": 2}
     with pytest.raises(SystemExit, match="share their environment overrides"):
         summarize([first, run("c", "16,3,1.0,1.0,9.0\n", {})], from_steps=0)
+
+
+def test_rware_throughput_table_takes_its_ratio_from_the_alternated_pairs():
+    """``rware_throughput.markdown``: the headline column is the median of the alternated pairs' ratios with their
+    range, and a report without pairs says its ratio was not alternated (a best batch over rware's median)."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from rware_throughput import markdown
+
+    rows = [{"batch": 32, "agent_steps_per_s": 2.0e6}, {"batch": 1024, "agent_steps_per_s": 6.0e6}]
+    entry = {"ours": rows, "rware": {"agent_steps_per_s": 8.0e3}, "jumanji": "not run",
+             "paired": {"batch": 1024, "pairs": 3, "ratios": [700.0, 900.0, 800.0], "median_ratio": 800.0}}
+    report = {"date": "d", "machine": "m", "command": "c", "ids": {"rware-tiny-4ag-v2": entry}}
+    line = next(row for row in markdown(report).splitlines() if row.startswith("| rware-tiny-4ag-v2"))
+    assert "**800x** (700-900x over 3 pairs at B=1024)" in line and "750x" not in line
+    del entry["paired"]
+    line = next(row for row in markdown(report).splitlines() if row.startswith("| rware-tiny-4ag-v2"))
+    assert "750x (best batch over rware, not alternated)" in line

@@ -57,6 +57,8 @@ def test_the_study_maps_take_the_contract_limits_and_other_layouts_name_theirs()
     ({"actuation_noise": -0.1}, "actuation_noise is a standard deviation"),
     ({"lidar_noise": -1e-3}, "lidar_noise is a standard deviation"),
     ({"lidar_dropout": 2.0}, "lidar_dropout is a probability"),
+    ({"obstacle_speed": -0.5}, "obstacle_speed must be >= 0"),
+    ({"v_max": float("inf")}, "v_max must be a finite number"),
     ({"gain_low": 1.3}, "gain range"),
     ({"lidar_rang": 3.0}, "unknown continuous warehouse setting"),
     ({"num_obstacles": 200}, "fewer than num_obstacles=200"),
@@ -94,8 +96,12 @@ def test_map_files_and_movingai_layouts_build_the_same_environment_as_their_asci
     for params in built[1:]:
         for field in ("shelves", "start", "goal", "items", "num_items", "obstacle_cells"):
             np.testing.assert_array_equal(getattr(params, field), getattr(built[0], field), err_msg=field)
-    padded = load_map(tmp_path / "floor.map", start=(0, 0), goal=(3, 3), items=[(0, 3)], max_shape=(6, 6))
-    assert make_continuous(padded, max_steps=50)[1].shelves.shape == (4, 4)  # cut to the map's own rows and columns
+    padded = load_map(tmp_path / "floor.map", start=(0, 0), goal=(3, 3), items=[(0, 3), (2, 3)], max_shape=(6, 6))
+    np.testing.assert_array_equal(make_continuous(padded, max_steps=50)[1].shelves, built[0].shelves)  # cut to 4x4
+    assert make_continuous(str(tmp_path / "floor.txt"), max_steps=50)[1].shelves.shape == (4, 4)  # a path as text
+    (tmp_path / "wide.map").write_text("type octile\nheight 2\nwidth 3\nmap\n...\n.@.\n")
+    wide = make_continuous(load_map(tmp_path / "wide.map", start=(0, 0), goal=(0, 2), items=[(1, 2)]), max_steps=20)
+    np.testing.assert_array_equal(wide[1].shelves, [[0, 0, 0], [0, 1, 0], [1, 1, 1]])  # squared with shelves
     with pytest.raises(ValueError, match="no start, goal and items given"):
         make_continuous(tmp_path / "floor.map", max_steps=50)
     with pytest.raises(ValueError, match="layout is a Layout, an ASCII map"):

@@ -233,7 +233,7 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
         array = action if isinstance(action, jax.core.Tracer) else np.asarray(action)
         if array.shape != (2,):
             raise ValueError(f"a continuous warehouse action has shape (2,) (speed, turn), got shape {array.shape}")
-        if array.dtype.kind not in "fiu":
+        if not (jnp.issubdtype(array.dtype, jnp.floating) or jnp.issubdtype(array.dtype, jnp.integer)):
             raise ValueError(f"a continuous warehouse action is two floats in [-1, 1], got dtype {array.dtype}")
 
     def action_space(self, params: ContinuousParams | None = None) -> spaces.Box:

@@ -7,6 +7,7 @@ names its own. Bad settings are refused here, before anything compiles, with the
 from __future__ import annotations
 
 import os
+from pathlib import Path
 from typing import Any
 
 import jax.numpy as jnp
@@ -46,7 +47,6 @@ SHAPINGS = ("manhattan", "geodesic")
 """The shaping term's distance: the contract's, or around the shelves (:mod:`.geodesic`)."""
 
 POSITIVE = ("dt", "v_max", "w_max", "robot_radius", "reach_radius", "lidar_range", "obstacle_radius")
-REWARDS = ("step_penalty", "collision_penalty", "shaping_coef", "pickup_reward", "delivery_reward")
 
 
 def obstacle_cells(layout: Layout) -> np.ndarray:
@@ -58,12 +58,15 @@ def obstacle_cells(layout: Layout) -> np.ndarray:
 
 
 def as_layout(layout: Layout | str | os.PathLike | PaddedLayout) -> Layout:
-    """The grid :class:`Layout` of what :func:`make_continuous` accepts: a layout, an ASCII map, a map file's path
-    (:func:`~wrl_jax.envs.procedural.load_map`: ASCII, or MovingAI where it has its cells) or one
-    :class:`PaddedLayout` (what ``load_map(path, key=...)`` gives for a MovingAI map), cut to its real rows and
-    columns."""
+    """The grid :class:`Layout` of what :func:`make_continuous` accepts: a layout; an ASCII map; a map file's path (a
+    ``pathlib.Path``, or a one-line string naming an existing file), read by
+    :func:`~wrl_jax.envs.procedural.load_map` (an ASCII file carries its cells; a MovingAI ``.map`` file does not, so
+    load it with its cells or a key and pass the result); or one :class:`PaddedLayout`, cut to its real rows and
+    columns and, where those differ in number, padded to a square with shelves (the layouts here are square)."""
     if isinstance(layout, Layout):
         return layout
+    if isinstance(layout, str) and "\n" not in layout.strip() and os.path.isfile(layout.strip()):
+        layout = Path(layout.strip())
     if isinstance(layout, str):
         return parse(layout)
     if isinstance(layout, os.PathLike):
@@ -73,8 +76,10 @@ def as_layout(layout: Layout | str | os.PathLike | PaddedLayout) -> Layout:
             raise ValueError(f"make_continuous takes one layout; got a batch of shape {np.shape(layout.blocked)[:-2]} "
                              "(pick one, e.g. wrl_jax.envs.continuous.procedural_layouts.slot_layout(pool, i))")
         height, width, count = int(layout.height), int(layout.width), int(layout.num_items)
-        return Layout(shelves=np.asarray(layout.blocked, bool)[:height, :width],
-                      start=np.asarray(layout.start, np.int32), goal=np.asarray(layout.goal, np.int32),
+        side = max(height, width)
+        shelves = np.ones((side, side), bool)
+        shelves[:height, :width] = np.asarray(layout.blocked, bool)[:height, :width]
+        return Layout(shelves=shelves, start=np.asarray(layout.start, np.int32), goal=np.asarray(layout.goal, np.int32),
                       items=np.asarray(layout.items, np.int32)[:count])
     raise ValueError(f"a continuous warehouse's layout is a Layout, an ASCII map, a map file's path or a "
                      f"PaddedLayout; got {type(layout).__name__}")
@@ -100,7 +105,7 @@ def make_continuous(layout: Layout | str | os.PathLike | PaddedLayout, *, max_st
 
     Raises:
         ValueError: naming the problem: an unknown override or shaping, a non-positive length or speed, a
-            radius that does not fit a cell, a reward constant that is not finite, a negative noise, a
+            radius that does not fit a cell, a setting that is not finite, a negative speed or noise, a
             dropout outside ``[0, 1]``, a ``max_steps`` missing for a layout other than the study's, too few
             cells for the obstacles, a gain range that is not ``0 < low <= high``, ``observe_route`` without
             geodesic shaping, a ``safety_stop`` with ``randomize``, or a ``safety_margin`` out of
@@ -119,18 +124,20 @@ def make_continuous(layout: Layout | str | os.PathLike | PaddedLayout, *, max_st
             raise ValueError("max_steps is needed for a layout other than the study's 8x8 and 12x12 maps")
     if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
         raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    for field, value in settings.items():
+        if field != "randomize" and not np.isfinite(float(value)):
+            raise ValueError(f"{field} must be a finite number, got {value!r}")
     for field in POSITIVE:
         if not float(settings[field]) > 0:
             raise ValueError(f"{field} must be positive, got {settings[field]!r}")
+    if not float(settings["obstacle_speed"]) >= 0:
+        raise ValueError(f"obstacle_speed must be >= 0 (metres per second), got {settings['obstacle_speed']!r}")
     if not 0 < float(settings["gain_low"]) <= float(settings["gain_high"]):
         raise ValueError(f"the gain range must be 0 < gain_low <= gain_high, got "
                          f"{settings['gain_low']!r}..{settings['gain_high']!r}")
     for field in ("robot_radius", "obstacle_radius"):
         if not float(settings[field]) < 0.5:
             raise ValueError(f"{field} {settings[field]!r} does not fit a 1 m cell (it must be below 0.5)")
-    for field in REWARDS:
-        if not np.isfinite(float(settings[field])):
-            raise ValueError(f"{field} must be a finite number, got {settings[field]!r}")
     for field in ("actuation_noise", "lidar_noise"):
         if not float(settings[field]) >= 0:
             raise ValueError(f"{field} is a standard deviation: it must be >= 0, got {settings[field]!r}")
