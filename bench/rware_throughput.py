@@ -30,8 +30,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import statistics
+import os
 import platform
+import statistics
 import subprocess
 import sys
 import time
@@ -390,10 +391,22 @@ NOTES = ("Notes. Every number is a median of timings of at least a second each (
 """The fixed text under the tables."""
 
 
+def cores_sentence(cores: int | None) -> str:
+    """What the run could use: rware's loop takes one core whatever the machine; XLA's CPU runtime splits our larger
+    fusions over every core the process may run on (``taskset -c 0`` before the command leaves it one)."""
+    if cores is None:
+        return ""
+    if cores == 1:
+        return " Every side on one core (the process and its children pinned to it)."
+    return (f" The process could use {cores} cores: rware's loop runs on one, XLA splits our larger fusions over "
+            f"them (`taskset -c 0` before the command times every side on one core).")
+
+
 def markdown(report: dict) -> str:
     batches = sorted({row["batch"] for entry in report["ids"].values() for row in entry["ours"]})
     lines = [f"# RWARE throughput ({report['date']}, {report['machine']})", "",
-             f"`{report['command']}`", "", "Agent-steps per second (environment steps x 4 agents), random actions.",
+             f"`{report['command']}`", "", "Agent-steps per second (environment steps x 4 agents), random actions."
+             + cores_sentence(report.get("cores")),
              "", ("| id | " + " | ".join(f"ours B={b}" for b in batches)
                   + " | rware (Python, 1 env) | ours / rware, alternated | Jumanji at its best batch |"),
              "|---|" + "---|" * (len(batches) + 3)]
@@ -476,7 +489,7 @@ def main() -> None:
 
     report = {"command": "python bench/rware_throughput.py " + " ".join(sys.argv[1:]),
               "date": time.strftime("%Y-%m-%d"), "machine": f"{platform.machine()}, {jax.devices()[0].device_kind}",
-              "jax": jax.__version__, "ids": {}}
+              "jax": jax.__version__, "cores": len(os.sched_getaffinity(0)), "ids": {}}
     for name in args.ids:
         print(name, flush=True)
         entry = {"ours": bench_ours(name, args.batch_sizes, args.repeats),

@@ -173,3 +173,8 @@ def test_rware_throughput_table_takes_its_ratio_from_the_alternated_pairs():
     del entry["paired"]
     line = next(row for row in markdown(report).splitlines() if row.startswith("| rware-tiny-4ag-v2"))
     assert "750x (best batch over rware, not alternated)" in line
+    assert "cores" not in markdown(report)  # a report from before the field says nothing about them
+    report["cores"] = 2
+    assert "could use 2 cores: rware's loop runs on one" in markdown(report)
+    report["cores"] = 1
+    assert "Every side on one core" in markdown(report)
