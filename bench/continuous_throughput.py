@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import time
 from pathlib import Path
@@ -117,9 +118,12 @@ def main() -> None:
         rate = batch * args.steps / statistics.median(jax_times[batch])
         rows.append({"batch": batch, "jax_steps_per_s": rate, "compile_s": compile_s[batch],
                      "ratio_to_reference": rate / reference_rate})
+    # The reference's loop runs on one core; XLA splits the larger fusions over every core the process may use
+    # (`taskset -c 0` before the command pins every side to one).
+    cores = len(os.sched_getaffinity(0))
     report = {"env": args.env, "reference_steps_per_s": reference_rate, "rows": rows, "jax": jax.__version__,
-              "steps_per_call": args.steps, "repeats": args.repeats}
-    print(f"{args.env}: NumPy reference {reference_rate:,.0f} steps/s (one env, Python loop)")
+              "steps_per_call": args.steps, "repeats": args.repeats, "cores": cores}
+    print(f"{args.env}: NumPy reference {reference_rate:,.0f} steps/s (one env, Python loop); {cores} core(s)")
     print("| batch | JAX env steps/s | x reference | compile s |\n|---:|---:|---:|---:|")
     for row in rows:
         print(f"| {row['batch']:,} | {row['jax_steps_per_s']:,.0f} | {row['ratio_to_reference']:,.0f}x | "
