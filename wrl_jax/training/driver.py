@@ -94,7 +94,11 @@ class Trainer:
         self._compiled = None
         self._compiled_signature = None
         self.evaluation = family_evaluation.for_env(algo.env)
-        self._eval_jit = jax.jit(self._evaluate)
+        # One jitted evaluation, traced once per runner shapes: the loop's evaluations call it inside the chunk, the
+        # empty evaluation takes its shapes and ``evaluate`` runs it, from the same trace (the fleet's, with PIBT
+        # inside, takes seconds to trace).
+        self._evaluate_jit = jax.jit(self._evaluate)
+        self._eval_jit = self._evaluate_jit
         # One jitted init per batching of (hyper, env_params), and the evaluation's shapes per runner
         # signature: a trainer run again (a resume, a sweep's points) neither retraces nor recompiles them.
         self._init_jits: dict[tuple[bool, bool], Any] = {}
@@ -131,7 +135,7 @@ class Trainer:
             return LatestEval(update=jnp.int32(0), episodes=None)
         signature = _signature(runners)
         if signature not in self._eval_shapes:
-            self._eval_shapes[signature] = jax.eval_shape(self._evaluate, runners)
+            self._eval_shapes[signature] = jax.eval_shape(self._evaluate_jit, runners)
         shapes = self._eval_shapes[signature]
         return LatestEval(update=jnp.int32(0), episodes=jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes))
 
@@ -143,7 +147,7 @@ class Trainer:
             return jax.tree.map(lambda s: jnp.full(s.shape, jnp.nan, s.dtype), shapes)
 
         def evaluate(runners, index, latest):
-            episodes = self._evaluate(runners)
+            episodes = self._evaluate_jit(runners)
             return jax.vmap(self.evaluation.seed_summary)(episodes), LatestEval(update=index + 1, episodes=episodes)
 
         def active(carry, index):
