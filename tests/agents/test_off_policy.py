@@ -16,7 +16,6 @@ update (``stepwise``).
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 
 import jax
@@ -429,24 +428,24 @@ def same_bits(a, b) -> bool:
         np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(leaves_a, leaves_b))
 
 
-def test_td3_chunks_and_resume_give_the_same_bits(corridor, tmp_path):
-    """TD3 through the driver: chunks of 8 updates with a checkpoint and a resume after the first give the run in
-    one chunk bit for bit. The actor's delay (3) straddles the chunks, so the update counter, the target actor and
-    the replay buffer must all travel in the checkpoint."""
+def test_td3_stopped_and_resumed_gives_the_same_bits(corridor, tmp_path):
+    """TD3 through the driver: a run of 48 updates in chunks of 8, stopped after the first chunk with a checkpoint
+    and resumed, gives the run never stopped bit for bit (one chunk program for both: that chunks give a single
+    chunk's bits is the driver's, checked with SAC below). The actor's delay (3) straddles the stop, so the update
+    counter, the target actor and the replay buffer must all travel in the checkpoint."""
     env, params = corridor
     algo = TD3(TD3Config(num_envs=4, total_timesteps=4 * 48, learning_starts=0, batch_size=16, hidden_sizes=(16,),
                          buffer_size=128, gradient_steps=2, policy_delay=3), env, params)
     assert algo.num_updates == 48
-    loop = functools.partial(training.LoopConfig, eval_every=0, progress=False)
-    whole_trainer = training.Trainer(algo, SEEDS, loop(chunk_updates=48))
-    start = whole_trainer.init()
-    whole, _, _ = whole_trainer.run_chunk(start, 0)
-    in_pieces = training.Trainer(algo, SEEDS, loop(chunk_updates=8))
+    trainer = training.Trainer(algo, SEEDS, training.LoopConfig(chunk_updates=8, eval_every=0, progress=False))
+    start = trainer.init()
+    whole = training.run(trainer, runners=start)
+    assert whole.finished and whole.updates_done == 48
     meta = {"algo": "td3", "config": {"note": "test"}}
-    first = training.run(in_pieces, tmp_path, metadata=meta, stop_after=8, runners=start)
-    assert first.updates_done == 8 and not first.finished and not same_bits(first.runners, whole)
-    resumed = training.run(in_pieces, tmp_path, metadata=meta, resume=True, runners=start)
-    assert resumed.finished and resumed.updates_done == 48 and same_bits(resumed.runners, whole)
+    first = training.run(trainer, tmp_path, metadata=meta, stop_after=8, runners=start)
+    assert first.updates_done == 8 and not first.finished and not same_bits(first.runners, whole.runners)
+    resumed = training.run(trainer, tmp_path, metadata=meta, resume=True, runners=start)
+    assert resumed.finished and resumed.updates_done == 48 and same_bits(resumed.runners, whole.runners)
 
 
 def test_sac_chunks_and_resume_give_the_same_bits(sac_run, tmp_path):
