@@ -15,11 +15,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import commands_level
 import fast_compile
 
 import wrl_jax
 from wrl_jax import training
 from wrl_jax.agents import ppo_config
+from wrl_jax.agents.base import make_train_seeds
 from wrl_jax.agents.ppo import PPO
 from wrl_jax.cli import train as cli_train
 from wrl_jax.envs.fleet import evaluation as fleet_evaluation
@@ -117,23 +119,34 @@ def test_bad_fleet_configurations_fail_before_compiling():
 
 @pytest.mark.slow
 def test_ippo_learns_a_fleet_far_above_random():
-    """Two robots, a CI-sized budget (40 updates, 81,920 env steps), evaluated in the loop after the last update:
-    the greedy fleet delivers far more than random actions on the same shifts, and a good part of what PIBT
-    delivers. Measured on probe seeds 50-57 (same budget): 0.039-0.062 deliveries per step against PIBT's
-    0.089 (43-69 %), random actions 0.0001. Seed 7100 is used nowhere else."""
-    # 4 epochs per update (the first fleet preset's), the budget the probe seeds below were measured with.
+    """Two robots, a CI-sized budget (40 updates of the fleet preset, 4 epochs each, 81,920 env steps), evaluated
+    after the last update: the greedy fleet delivers far more than random actions on the same shifts, and a good
+    part of what PIBT delivers (the assertion asks 30 %).
+
+    At the commands' LLVM level (``commands_level.jit``): ``make_train``'s one program and the trainer's evaluation
+    (with random actions on the same shifts) compiled at level 1, whose longer compile the 40 updates repay (they
+    run several times faster than at the session's level 0). Measured at level 1 on seeds 50-61 (same budget):
+    0.027-0.059 deliveries per step against PIBT's 0.089, 30-67 % of it (seed 61 the lowest, the others 44 % or
+    more; at level 0, seeds 50-57 gave 43-69 %). Seed 7100, used nowhere else: 0.047, 52 %. Random actions: about 0.0001."""
     config = dataclasses.replace(ppo_config.FLEET, update_epochs=4, total_timesteps=40 * ppo_config.FLEET.steps_per_update)
     env, params = wrl_jax.make("Fleet-12x12-v0", num_robots=2)
-    trainer = training.Trainer(PPO(config, env, params), [7100], training.LoopConfig(eval_every=40, progress=False))
-    result = training.run(trainer)
-    assert all(0.0 <= row["train_throughput"] < 1.0 for row in result.rows)
-    last = result.rows[-1]
-    throughput, pibt = last["eval_throughput"], last["eval_pibt_throughput"]
+    trainer = training.Trainer(PPO(config, env, params), [7100], training.LoopConfig(eval_every=0, progress=False))
+    runners, train_metrics = commands_level.jit(make_train_seeds(trainer.algo))(training.seed_keys(trainer.seeds))
     keys = jax.random.split(jax.random.key(fleet_evaluation.EVAL_SEED), fleet_evaluation.TRAINING_EPISODES)
-    # Random actions' counts, compared with a margin: compiled at LLVM level 0 (tests/fast_compile.py).
-    random_counts = fast_compile.jit(jax.vmap(lambda k: metrics.policy_episode_counts(
-        env, params, lambda obs, key: jax.random.randint(key, (env.num_robots,), 0, 5), k, 256)))(keys)
-    random_throughput = float(random_counts["delivered"].sum() / (keys.shape[0] * 256))
+
+    @commands_level.jit
+    def evaluate(runners):
+        """The trainer's evaluation of the seed (greedy fleet and PIBT) and random actions on the same shifts."""
+        summary = jax.vmap(fleet_evaluation.seed_summary)(trainer._evaluate(runners))
+        random_counts = jax.vmap(lambda k: metrics.policy_episode_counts(
+            env, params, lambda obs, key: jax.random.randint(key, (env.num_robots,), 0, 5), k, 256))(keys)
+        return summary, random_counts["delivered"].sum() / (keys.shape[0] * 256)
+
+    summary, random_throughput = jax.device_get(evaluate(runners))
+    train_throughput = np.asarray(train_metrics["deliveries_sum"]) / trainer.steps_per_update  # per update
+    assert train_throughput.shape == (1, 40) and (0.0 <= train_throughput).all() and (train_throughput < 1.0).all()
+    throughput, pibt = float(summary["eval_throughput"][0]), float(summary["eval_pibt_throughput"][0])
+    random_throughput = float(random_throughput)
     assert throughput > 50 * max(random_throughput, 1 / (keys.shape[0] * 256)), (throughput, random_throughput)
     assert throughput > 0.3 * pibt, (throughput, pibt)
 
