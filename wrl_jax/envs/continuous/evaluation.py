@@ -4,8 +4,8 @@ One episode per (round, item index): the environment is reset to that item (the 
 from a fixed key, so every evaluation sees the same episodes) and the deterministic policy acts
 until the item is delivered or the episode is truncated. With moving obstacles one round is too few
 episodes to see rare collisions, so such warehouses run :data:`OBSTACLE_ROUNDS` rounds. Everything
-is one jitted program: ``vmap`` over rounds and items, a ``lax.while_loop`` over time that stops
-once every episode has ended.
+is one jitted program: one ``lax.while_loop`` over time for the batch of (round, item) episodes, which
+stops once every episode has ended (:func:`run_episodes`).
 
 The family's hook for the training driver and the CLI (:data:`EVALUATION`): a seed has *solved* its
 warehouse when every episode delivers without touching anything. After training, the pure-pursuit
@@ -61,44 +61,73 @@ def rounds(env: ContinuousWarehouse) -> int:
     return OBSTACLE_ROUNDS if env.num_obstacles else 1
 
 
-def run_episode(act: Callable[..., Any], env: ContinuousWarehouse, params: ContinuousParams, key: jax.Array,
-                item_index: jax.Array, start: Callable[[Any], Any] | None = None) -> tuple[jax.Array, ...]:
-    """One episode from ``key`` with the item forced.
+def episode_start(act: Callable[..., Any], env: ContinuousWarehouse, params: ContinuousParams, key: jax.Array,
+                  item_index: jax.Array, start: Callable[[Any], Any] | None = None) -> tuple:
+    """The first carry of one episode from ``key`` with the item forced (:func:`run_episodes`).
 
-    ``act(obs, state) -> action`` (a policy), or, given ``start(state) -> memory``, a controller that keeps a
-    memory between steps: ``act(obs, state, memory) -> (action, memory)`` (the pursuit controller).
-    Returns ``(delivered, steps, return, collisions, pickup_step)``.
+    ``act(obs, state)`` is a policy, or, given ``start(state) -> memory``, a controller that keeps a memory
+    between steps: ``act(obs, state, memory) -> (action, memory)`` (the pure-pursuit controller).
     """
     reset_key, step_key = jax.random.split(key)
     draws = env.reset_draws(reset_key, params).replace(item_index=jnp.asarray(item_index, jnp.int32))
     obs, state = env.reset_with(draws, params)
     memory = () if start is None else start(state)
     zero = jnp.zeros((), jnp.int32)
-    init = (obs, state, memory, jnp.zeros((), bool), jnp.zeros((), bool), jnp.zeros((), jnp.float32), zero, zero - 1)
+    return (jnp.zeros((), bool), obs, state, memory, step_key, jnp.zeros((), bool), jnp.zeros((), jnp.float32), zero,
+            zero - 1)
+
+
+def episode_step(act: Callable[..., Any], env: ContinuousWarehouse, params: ContinuousParams, carry: tuple,
+                 start: Callable[[Any], Any] | None = None) -> tuple:
+    """One transition of an episode's carry (:func:`episode_start`): ``(ended, obs, state, memory, step key,
+    delivered, return, collisions, pickup step)``."""
+    _, obs, state, memory, step_key, _, ret, collisions, pickup_step = carry
+    action, memory = (act(obs, state), ()) if start is None else act(obs, state, memory)
+    obs, state, reward, terminated, truncated, info = env.transition(
+        jax.random.fold_in(step_key, state.time), state, action, params)
+    pickup_step = jnp.where(info["picked_up"], state.time, pickup_step)
+    return (terminated | truncated, obs, state, memory, step_key, terminated, ret + reward,
+            collisions + info["collision"].astype(jnp.int32), pickup_step)
+
+
+def run_episodes(begin: Callable[..., tuple], step: Callable[..., tuple], args: Sequence[jax.Array],
+                 depth: int = 1) -> tuple[jax.Array, ...]:
+    """Episodes over the leading ``depth`` axes of ``args``, until every one has ended: one ``lax.while_loop`` for
+    the batch, in which an episode that has ended keeps its carry (what ``vmap`` makes of a loop per episode,
+    written out: JAX's batching rule for a loop would batch its body several times at every ``vmap`` level, most
+    of the evaluation's tracing time). ``begin(*arg)`` is :func:`episode_start` of one episode, ``step(carry,
+    *arg)`` :func:`episode_step`. Returns ``(delivered, steps, return, collisions, pickup_step)``.
+    """
+    def batched(fn):
+        for _ in range(depth):
+            fn = jax.vmap(fn)
+        return fn
+
+    step_all = batched(step)
 
     def body(carry):
-        obs, state, memory, _, _, ret, collisions, pickup_step = carry
-        action, memory = (act(obs, state), ()) if start is None else act(obs, state, memory)
-        obs, state, reward, terminated, truncated, info = env.transition(
-            jax.random.fold_in(step_key, state.time), state, action, params)
-        pickup_step = jnp.where(info["picked_up"], state.time, pickup_step)
-        return (obs, state, memory, terminated | truncated, terminated, ret + reward,
-                collisions + info["collision"].astype(jnp.int32), pickup_step)
+        running = ~carry[0]
+        new = step_all(carry, *args)
+        return jax.tree.map(lambda n, o: jnp.where(running.reshape(running.shape + (1,) * (n.ndim - running.ndim)),
+                                                   n, o), new, carry)
 
-    _, state, _, _, delivered, ret, collisions, pickup_step = jax.lax.while_loop(lambda c: ~c[3], body, init)
+    carry = jax.lax.while_loop(lambda c: jnp.any(~c[0]), body, batched(begin)(*args))
+    _, _, state, _, _, delivered, ret, collisions, pickup_step = carry
     return delivered, state.time, ret, collisions, pickup_step
 
 
 def evaluate_episodes(act: Callable[..., Any], env: ContinuousWarehouse, params: ContinuousParams,
                       num_rounds: int | None = None, start: Callable[[Any], Any] | None = None) -> ContinuousEval:
-    """``act`` on every (round, item): the evaluation's fixed episodes (shape ``(rounds, I_max)``); ``start``
-    as in :func:`run_episode`."""
+    """``act`` on every (round, item): the evaluation's fixed episodes (shape ``(rounds, I_max)``); ``act`` and
+    ``start`` as in :func:`episode_start`."""
     num_rounds = rounds(env) if num_rounds is None else int(num_rounds)
     items = jnp.arange(params.items.shape[0], dtype=jnp.int32)
     keys = jax.random.split(jax.random.PRNGKey(EVAL_SEED), num_rounds * items.shape[0])
     keys = keys.reshape(num_rounds, items.shape[0], *keys.shape[1:])
-    episode = jax.vmap(jax.vmap(lambda k, i: run_episode(act, env, params, k, i, start)), in_axes=(0, None))
-    delivered, steps, ret, collisions, pickup_step = episode(keys, items)
+    delivered, steps, ret, collisions, pickup_step = run_episodes(
+        lambda key, item: episode_start(act, env, params, key, item, start),
+        lambda carry, key, item: episode_step(act, env, params, carry, start),
+        (keys, jnp.broadcast_to(items, keys.shape[:2])), depth=2)
     valid = jnp.broadcast_to(items < params.num_items, delivered.shape)
     return ContinuousEval(valid=valid, delivered=delivered & valid, steps=steps, episode_return=ret,
                           collisions=collisions, pickup_step=pickup_step)

@@ -14,7 +14,7 @@ layouts it never saw afterwards (the generalization measurement).
   pure-pursuit controller on the same episodes (each layout's plan made on the host, :func:`pursuit_plans`)
   and, without randomization, the lower bound: what a planner does on layouts the policy never saw.
 
-Episodes run on the plain environment with the layout's params (``run_episode`` of
+Episodes run on the plain environment with the layout's params (``episode_start`` and ``episode_step`` of
 :mod:`~wrl_jax.envs.continuous.evaluation`), so they are the episodes the plain hook would run there.
 """
 
@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from wrl_jax.envs.continuous.evaluation import (EVAL_SEED, PURSUIT_FIELDS, ContinuousEval, contract_env, rounds,
-                                                run_episode, summarize)
+                                                episode_start, episode_step, run_episodes, summarize)
 from wrl_jax.envs.continuous.procedural_layouts import layout_params, pool_size, with_pool
 from wrl_jax.envs.procedural.layout_sets import LayoutSet, heldout_set, ood_sets, pad_items
 
@@ -63,7 +63,7 @@ def evaluate_pool_sample(act: Act, env, params, count: int | None = None) -> Con
 
 def run_pairs(act: Act | None, env, params, slots: jax.Array, items: jax.Array, rounds_of: jax.Array,
               plans: Any = None, controller_env: Any = None) -> tuple:
-    """Episodes ``(slot, item, round)`` of ``params``' pool, all at once: ``run_episode``'s outputs ``(E,)``.
+    """Episodes ``(slot, item, round)`` of ``params``' pool, all at once: ``run_episodes``' outputs ``(E,)``.
 
     ``act(obs, state)`` is a policy on ``env.plain``; with ``act=None`` the pure-pursuit controller drives
     ``controller_env`` (:func:`~wrl_jax.envs.continuous.evaluation.contract_env`) instead, each episode on its
@@ -76,16 +76,24 @@ def run_pairs(act: Act | None, env, params, slots: jax.Array, items: jax.Array, 
         raise ValueError("run_pairs: the controller (act=None) needs plans and controller_env")
     root = jax.random.PRNGKey(EVAL_SEED)
 
-    def one(slot, item, round_index):
-        key = jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(root, slot), item), round_index)
+    def episode(slot, item):  # the policy (or the slot's controller), its environment and the slot's params
         layout = layout_params(params, slot)
         if act is not None:
-            return run_episode(act, env.plain, layout, key, item)
+            return act, env.plain, layout, None
         plan = jax.tree.map(lambda leaf: leaf[slot], plans)
         drive = lambda obs, state, control: pursuit_act(plan, control, state, layout, PursuitConfig())  # noqa: E731
-        return run_episode(drive, controller_env, layout, key, item, start=lambda state: pursuit_init(plan, state))
+        return drive, controller_env, layout, lambda state: pursuit_init(plan, state)
 
-    return jax.vmap(one)(slots, items, rounds_of)
+    def begin(slot, item, round_index):
+        key = jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(root, slot), item), round_index)
+        policy, episode_env, layout, start = episode(slot, item)
+        return episode_start(policy, episode_env, layout, key, item, start)
+
+    def step(carry, slot, item, round_index):
+        policy, episode_env, layout, start = episode(slot, item)
+        return episode_step(policy, episode_env, layout, carry, start)
+
+    return run_episodes(begin, step, (slots, items, rounds_of))
 
 
 def pursuit_plans(params, slots: np.ndarray) -> tuple[Any, np.ndarray]:
