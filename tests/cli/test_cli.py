@@ -415,7 +415,8 @@ def test_the_safety_stop_is_a_flag_of_the_continuous_warehouse_and_refused_with_
 
 def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obstacles_where_they_move(tmp_path):
     """SAC's and TD3's commands add geodesic shaping, ``observe_route`` and the safety stop with its held value in
-    view on the study's maps (the procedural variant has no distance fields); PPO keeps the target alone there; on
+    view on the study's maps (on the procedural variant PPO's command adds the route, SAC's and TD3's do not: not
+    measured there); PPO keeps the target alone on the study's maps; on
     the moving obstacles' map every learner also sees the obstacles, and PPO trains for the 3M steps measured there
     (SAC for 800k, as TD3 does everywhere); the flags turn it off, and a route without the fields is refused by name
     when the environment is built, before anything compiles."""
@@ -433,6 +434,9 @@ def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obsta
         overrides = cli_options.parse(algo, ["--env", "Continuous-Procedural-Warehouse-v0", "--out",
                                              str(tmp_path / algo)]).env.overrides()
         assert "observe_route" not in overrides and "shaping" not in overrides and overrides["observe_target"]
+    overrides = cli_options.parse("ppo", ["--env", "Continuous-Procedural-Warehouse-v0", "--out",
+                                          str(tmp_path / "pp")]).env.overrides()  # PPO sees each layout's route
+    assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"]) == ("geodesic", True, True)
     for algo in ("sac", "td3", "ppo"):
         overrides = cli_options.parse(algo, ["--env", dynamic, "--out", str(tmp_path / algo)]).env.overrides()
         assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"],
@@ -465,7 +469,8 @@ def test_the_continuous_procedural_pool_size_is_a_flag_and_the_study_maps_refuse
     command = cli_options.parse("ppo", ["--env", "Continuous-Procedural-Warehouse-v0", "--pool-size", "8",
                                         "--out", str(tmp_path / "a")])
     algo = build(command.spec, command.config, command.env)
-    assert algo.env_params.pool.blocked.shape[0] == 8 and algo.env.observe_target
+    assert algo.env_params.pool.blocked.shape[0] == 8 and algo.env.observe_target and algo.env.observe_route
+    assert algo.env_params.pool_fields.shape[0] == 8  # every slot's distance fields
     with pytest.raises(ValueError, match="--pool-size: procedural options, but --env Continuous-Warehouse-8x8-v0"):
         cli_options.parse("ppo", ["--env", "Continuous-Warehouse-8x8-v0", "--pool-size", "8", "--out", str(tmp_path / "b")])
     with pytest.raises(ValueError, match="--pool-refresh: procedural options"):

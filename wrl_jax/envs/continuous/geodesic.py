@@ -42,8 +42,10 @@ SPARE = 0.1
 """Metres the field's routes keep from shelves and walls beyond the robot's radius."""
 UNREACHABLE = 1e4
 """The distance read where the target cannot be reached (finite, so differences stay 0, not NaN)."""
-FILL_REACH = 4
-"""Lattice steps over which points off the routes look for a route point (0.4 m at 10 per metre)."""
+FILL_METRES = 0.4
+"""Metres over which points off the routes look for a route point (:func:`fill_reach` lattice steps)."""
+FILL_CHUNK = 16
+"""Layouts filled at a time by :func:`pool_distance_fields`."""
 ROUTE_FEATURES = 3
 """Values :func:`route_features` appends: the way's direction (forward, left) and its remaining length."""
 ROUTE_STEP = 0.05
@@ -63,26 +65,29 @@ class GeodesicParams(ContinuousParams):
 
 
 def free_lattice(shelves: np.ndarray, margin: float, resolution: int = RESOLUTION) -> np.ndarray:
-    """``(H r + 1, W r + 1)`` bool: lattice points at least ``margin`` from every shelf square and the boundary."""
-    height, width = shelves.shape
+    """``(..., H r + 1, W r + 1)`` bool: lattice points at least ``margin`` from every shelf square and the
+    boundary, for one map ``(H, W)`` or a stack of them ``(..., H, W)``."""
+    shelves = np.asarray(shelves, bool)
+    height, width = shelves.shape[-2:]
     ys, xs = np.meshgrid(np.arange(height * resolution + 1) / resolution,
                          np.arange(width * resolution + 1) / resolution, indexing="ij")
     free = (xs >= margin) & (xs <= width - margin) & (ys >= margin) & (ys <= height - margin)
-    for row, col in zip(*np.nonzero(shelves)):
-        dx = np.clip(xs, col, col + 1) - xs
-        dy = np.clip(ys, row, row + 1) - ys
-        free &= dx * dx + dy * dy >= margin * margin
-    return free
+    rows, cols = np.indices((height, width)).reshape(2, -1, 1, 1)
+    dx = np.clip(xs, cols, cols + 1) - xs
+    dy = np.clip(ys, rows, rows + 1) - ys
+    near = (dx * dx + dy * dy < margin * margin).reshape(height * width, -1)  # (cells, points)
+    blocked = shelves.reshape(-1, height * width).astype(np.float32) @ near.astype(np.float32) > 0
+    return free & ~blocked.reshape(shelves.shape[:-2] + free.shape)
 
 
 def _move_allowed(free: np.ndarray, dy: int, dx: int) -> np.ndarray:
     """Where the move ``(dy, dx)`` joins two points on the routes (and, for a knight's move, passes
-    between two more)."""
-    ny, nx = free.shape
-    padded = np.pad(free, 2, constant_values=False)
+    between two more); ``free`` is ``(..., ny, nx)``."""
+    ny, nx = free.shape[-2:]
+    padded = np.pad(free, [(0, 0)] * (free.ndim - 2) + [(2, 2), (2, 2)], constant_values=False)
 
-    def at(oy, ox):  # free[y + oy, x + ox] for every (y, x), False off the lattice
-        return padded[2 + oy: 2 + oy + ny, 2 + ox: 2 + ox + nx]
+    def at(oy, ox):  # free[..., y + oy, x + ox] for every (y, x), False off the lattice
+        return padded[..., 2 + oy: 2 + oy + ny, 2 + ox: 2 + ox + nx]
 
     allowed = free & at(dy, dx)
     if abs(dy) == 2:  # a knight's move passes between two points: both must be free
@@ -114,30 +119,52 @@ def _distance_fields(shelves_bytes: bytes, shelves_shape: tuple, targets_bytes: 
                      margin: float, resolution: int) -> np.ndarray:
     shelves = np.frombuffer(shelves_bytes, bool).reshape(shelves_shape)
     targets = np.frombuffer(targets_bytes, np.float64).reshape(targets_shape)
-    free = free_lattice(shelves, margin, resolution)
-    allowed = np.stack([_move_allowed(free, dy, dx) for dy, dx in MOVES])
+    return pool_distance_fields(shelves[None], targets[None], margin, resolution)[0]
+
+
+def pool_distance_fields(shelves: np.ndarray, targets: np.ndarray, margin: float,
+                         resolution: int = RESOLUTION) -> np.ndarray:
+    """:func:`distance_fields` of a stack of maps at once: ``shelves`` ``(P, H, W)``, ``targets`` ``(P, K, 2)``
+    (``x, y`` metres) -> ``(P, K, ny, nx)`` float32, one compiled relaxation for the whole stack."""
+    shelves, targets = np.asarray(shelves, bool), np.asarray(targets, np.float64)
+    free = free_lattice(shelves, margin, resolution)  # (P, ny, nx)
+    allowed = np.stack([_move_allowed(free, dy, dx) for dy, dx in MOVES])[:, :, None]  # (moves, P, 1, ny, nx)
     lengths = np.array([np.hypot(dy, dx) / resolution for dy, dx in MOVES], np.float32)
-    cells = np.rint(np.asarray(targets, np.float64) * resolution).astype(int)
-    start = np.full((len(cells),) + free.shape, np.inf, np.float32)
-    for k, (x, y) in enumerate(cells):
-        if 0 <= y < free.shape[0] and 0 <= x < free.shape[1] and free[y, x]:
-            start[k, y, x] = 0.0
-    fields = np.asarray(_relax(jnp.asarray(start), jnp.asarray(allowed), jnp.asarray(lengths), int(free.sum())))
-    return np.minimum(_fill_off_routes(fields, free, resolution), UNREACHABLE).astype(np.float32)
+    cells = np.rint(targets * resolution).astype(int)  # (P, K, 2): x, y
+    x, y = cells[..., 0], cells[..., 1]
+    inside = (y >= 0) & (y < free.shape[-2]) & (x >= 0) & (x < free.shape[-1])
+    layout = np.broadcast_to(np.arange(len(free))[:, None], inside.shape)
+    on_route = inside & free[layout, np.where(inside, y, 0), np.where(inside, x, 0)]
+    start = np.full(targets.shape[:2] + free.shape[-2:], np.inf, np.float32)
+    pick = np.nonzero(on_route)
+    start[pick[0], pick[1], y[pick], x[pick]] = 0.0
+    fields = np.asarray(_relax(jnp.asarray(start), jnp.asarray(allowed), jnp.asarray(lengths), int(free[0].size)))
+    out = np.empty(fields.shape, np.float32)
+    for first in range(0, len(fields), FILL_CHUNK):  # a few layouts at a time: the float64 work stays in cache
+        chunk = slice(first, first + FILL_CHUNK)
+        filled = _fill_off_routes(fields[chunk], free[chunk, None], resolution, fill_reach(resolution))
+        out[chunk] = np.minimum(filled, UNREACHABLE)
+    return out
 
 
-def _fill_off_routes(fields: np.ndarray, free: np.ndarray, resolution: int, reach: int = FILL_REACH) -> np.ndarray:
+def fill_reach(resolution: int) -> int:
+    """Lattice steps of :data:`FILL_METRES` (4 at 10 points per metre)."""
+    return max(1, round(FILL_METRES * resolution))
+
+
+def _fill_off_routes(fields: np.ndarray, free: np.ndarray, resolution: int, reach: int) -> np.ndarray:
     """Points off the routes take the best route point within ``reach`` lattice steps, plus the straight
     distance to it: the potential rises towards shelves and walls instead of leaving holes. ``reach`` is
     far less than a shelf is thick, so no value leaks through a shelf from its other side."""
-    ny, nx = free.shape
+    ny, nx = free.shape[-2:]
     on_routes = np.where(free, fields, np.inf)
-    padded = np.pad(on_routes, ((0, 0), (reach, reach), (reach, reach)), constant_values=np.inf)
+    padded = np.pad(on_routes, [(0, 0)] * (fields.ndim - 2) + [(reach, reach), (reach, reach)],
+                    constant_values=np.inf)
     best = on_routes.copy()
     for dy in range(-reach, reach + 1):
         for dx in range(-reach, reach + 1):
             if 0 < dy * dy + dx * dx <= reach * reach:
-                shifted = padded[:, reach + dy: reach + dy + ny, reach + dx: reach + dx + nx]
+                shifted = padded[..., reach + dy: reach + dy + ny, reach + dx: reach + dx + nx]
                 best = np.minimum(best, shifted + np.hypot(dy, dx) / resolution)
     return np.where(free, fields, best)
 
@@ -146,12 +173,12 @@ def _fill_off_routes(fields: np.ndarray, free: np.ndarray, resolution: int, reac
 def _relax(start: jax.Array, allowed: jax.Array, lengths: jax.Array, bound: int) -> jax.Array:
     pad = 2
 
-    def sweep(dist):
-        padded = jnp.pad(dist, ((0, 0), (pad, pad), (pad, pad)), constant_values=jnp.inf)
-        ny, nx = dist.shape[1:]
+    def sweep(dist):  # dist (..., ny, nx); allowed (moves, ...) broadcasts against it
+        padded = jnp.pad(dist, [(0, 0)] * (dist.ndim - 2) + [(pad, pad), (pad, pad)], constant_values=np.inf)
+        ny, nx = dist.shape[-2:]
         best = dist
         for m, (dy, dx) in enumerate(MOVES):
-            neighbour = padded[:, pad + dy: pad + dy + ny, pad + dx: pad + dx + nx]
+            neighbour = padded[..., pad + dy: pad + dy + ny, pad + dx: pad + dx + nx]
             best = jnp.minimum(best, jnp.where(allowed[m], neighbour + lengths[m], jnp.inf))
         return best
 
@@ -180,6 +207,11 @@ def read_field(field: jax.Array, point: jax.Array, resolution: int = RESOLUTION)
     return top * (1 - fy) + bottom * fy
 
 
+def field_resolution(field: jax.Array, width: int) -> int:
+    """Lattice points per metre of a field over a map ``width`` cells wide (static: from shapes)."""
+    return (int(field.shape[-1]) - 1) // int(width)
+
+
 def target_field(params: GeodesicParams, item: jax.Array, carrying: jax.Array) -> jax.Array:
     """The field towards the current target: the slot of the item at ``item`` (metres), or the goal's while carrying."""
     slot = jnp.argmin(jnp.sum(jnp.abs(params.items - item), axis=-1))
@@ -198,15 +230,42 @@ def route_features(obs: jax.Array, params: GeodesicParams, width: int, height: i
     size = jnp.array([width, height], jnp.float32)
     pos = obs[0:2] * size
     field = target_field(params, obs[8:10] * size, obs[10] > 0.5)
+    read = functools.partial(read_field, field, resolution=field_resolution(field, width))
     dx, dy = jnp.array([ROUTE_STEP, 0.0]), jnp.array([0.0, ROUTE_STEP])
-    down = jnp.stack([read_field(field, pos - dx) - read_field(field, pos + dx),
-                      read_field(field, pos - dy) - read_field(field, pos + dy)])
+    down = jnp.stack([read(pos - dx) - read(pos + dx), read(pos - dy) - read(pos + dy)])
     slope = norm(down)
     way = jnp.where(slope > 0, down / jnp.maximum(slope, 1e-12), 0.0)
     cos, sin = obs[2], obs[3]
     scale = jnp.float32(max(width, height))
-    length = jnp.minimum(read_field(field, pos) / scale, ROUTE_LENGTH_CAP)
+    length = jnp.minimum(read(pos) / scale, ROUTE_LENGTH_CAP)
     return jnp.stack([way[0] * cos + way[1] * sin, way[1] * cos - way[0] * sin, length])
+
+
+def route_space(space, observe_route: bool):
+    """An observation space sized with the route (its values bounded by 1), the route's length in ``[0, cap]``."""
+    if not observe_route:
+        return space
+    high, low = np.asarray(space.high).copy(), np.asarray(space.low).copy()
+    high[-1] = ROUTE_LENGTH_CAP
+    low[-1] = 0.0
+    return type(space)(low=low, high=high, shape=space.shape, dtype=jnp.float32)
+
+
+def with_route(obs: jax.Array, params: GeodesicParams, width: int, height: int, observe_route: bool) -> jax.Array:
+    """``obs`` with :func:`route_features` after every other value, under ``observe_route``."""
+    if not observe_route:
+        return obs
+    return jnp.concatenate([obs, route_features(obs, params, width, height)])
+
+
+def shaping_change(state: ContinuousState, reached: ContinuousState, params: GeodesicParams, width: int) -> jax.Array:
+    """What the geodesic shaping adds to the contract's reward for ``state -> reached``: the shaping term
+    with the distance around the shelves in place of the Manhattan distance."""
+    field = target_field(params, state.item, state.carrying)
+    read = functools.partial(read_field, field, resolution=field_resolution(field, width))
+    target = jnp.where(state.carrying, params.goal, state.item)
+    contract = manhattan(state.pos, target) - manhattan(reached.pos, target)
+    return params.shaping_coef * (read(state.pos) - read(reached.pos) - contract)
 
 
 class GeodesicShaping(ContinuousWarehouse):
@@ -235,18 +294,10 @@ class GeodesicShaping(ContinuousWarehouse):
 
     def with_route(self, obs: jax.Array, params: GeodesicParams) -> jax.Array:
         """The route after every other value (the observation space's last bound is its length)."""
-        if not self.observe_route:
-            return obs
-        return jnp.concatenate([obs, route_features(obs, params, self.width, self.height)])
+        return with_route(obs, params, self.width, self.height, self.observe_route)
 
     def observation_space(self, params: GeodesicParams | None = None):
-        space = super().observation_space(params)  # sized by obs_size, the route's values bounded by 1
-        if not self.observe_route:
-            return space
-        high, low = np.asarray(space.high).copy(), np.asarray(space.low).copy()
-        high[-1] = ROUTE_LENGTH_CAP
-        low[-1] = 0.0
-        return type(space)(low=low, high=high, shape=(self.obs_size,), dtype=jnp.float32)
+        return route_space(super().observation_space(params), self.observe_route)
 
     def __repr__(self) -> str:
         return super().__repr__()[:-1] + f", geodesic shaping, route={'on' if self.observe_route else 'off'})"
@@ -257,12 +308,8 @@ class GeodesicShaping(ContinuousWarehouse):
 
     def transition(self, key: jax.Array, state: ContinuousState, action: Any, params: GeodesicParams):
         obs, reached, reward, terminated, truncated, info = super().transition(key, state, action, params)
-        obs = self.with_route(obs, params)
-        field = target_field(params, state.item, state.carrying)
-        target = jnp.where(state.carrying, params.goal, state.item)
-        contract = manhattan(state.pos, target) - manhattan(reached.pos, target)
-        around = read_field(field, state.pos) - read_field(field, reached.pos)
-        return obs, reached, reward + params.shaping_coef * (around - contract), terminated, truncated, info
+        return (self.with_route(obs, params), reached, reward + shaping_change(state, reached, params, self.width),
+                terminated, truncated, info)
 
 
 def with_fields(env: ContinuousWarehouse, params: ContinuousParams,

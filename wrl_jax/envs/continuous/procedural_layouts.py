@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from wrl_jax.envs.continuous import geodesic
 from wrl_jax.envs.continuous.dynamics import cell_centre
 from wrl_jax.envs.continuous.types import ContinuousParams, ContinuousState
 from wrl_jax.envs.procedural.layout import PaddedLayout
@@ -42,6 +43,19 @@ class ProceduralContinuousParams(ContinuousParams):
 
     pool: PaddedLayout
     pool_obstacle_cells: jax.Array
+
+
+@struct.dataclass
+class ProceduralGeodesicParams(ProceduralContinuousParams):
+    """The pool with each slot's distance fields, for geodesic shaping and the route.
+
+    ``pool_fields`` ``(P, I + 1, ny, nx)``: per slot, metres to each item row, then to the goal, on a
+    lattice of ``(ny - 1) / H`` points per metre (:func:`pool_fields`); ``fields`` holds the current slot's, as
+    :class:`~wrl_jax.envs.continuous.geodesic.GeodesicParams` does (:func:`layout_params` writes it).
+    """
+
+    fields: jax.Array
+    pool_fields: jax.Array
 
 
 @struct.dataclass
@@ -68,24 +82,41 @@ def obstacle_mask(layout: PaddedLayout) -> jax.Array:
     return ~layout.blocked & far & not_goal
 
 
+def pool_fields(layouts: PaddedLayout, robot_radius: float, resolution: int) -> jax.Array:
+    """``(P, I + 1, ny, nx)`` float32: each layout's distance fields to its item rows and its goal, routes
+    keeping ``robot_radius + SPARE`` from shelves, ``resolution`` lattice points per metre (host NumPy and one
+    compiled relaxation: :func:`~wrl_jax.envs.continuous.geodesic.pool_distance_fields`)."""
+    items = np.asarray(layouts.items)[..., ::-1] + 0.5  # cell centres (x, y), as layout_params writes them
+    goals = np.asarray(layouts.goal)[:, None, ::-1] + 0.5
+    return jnp.asarray(geodesic.pool_distance_fields(np.asarray(layouts.blocked), np.concatenate([items, goals], 1),
+                                                     float(robot_radius) + geodesic.SPARE, resolution))
+
+
 def with_pool(params: ProceduralContinuousParams, layouts: PaddedLayout) -> ProceduralContinuousParams:
-    """``params`` serving ``layouts`` (same padded shape) as its pool, obstacle cells recomputed (jittable)."""
+    """``params`` serving ``layouts`` (same padded shape) as its pool, obstacle cells recomputed (jittable), and
+    with geodesic params the distance fields too, at the same resolution (on the host: not jittable)."""
     if tuple(layouts.blocked.shape[-2:]) != tuple(params.shelves.shape):
         raise ValueError(f"layouts padded to {tuple(layouts.blocked.shape[-2:])}, the environment's map is "
                          f"{tuple(params.shelves.shape)}")
-    return params.replace(pool=layouts, pool_obstacle_cells=jax.vmap(obstacle_mask)(layouts))
+    params = params.replace(pool=layouts, pool_obstacle_cells=jax.vmap(obstacle_mask)(layouts))
+    if isinstance(params, ProceduralGeodesicParams):
+        resolution = geodesic.field_resolution(params.pool_fields, params.shelves.shape[-1])
+        params = params.replace(pool_fields=pool_fields(layouts, params.robot_radius, resolution))
+    return params
 
 
 def layout_params(params: ProceduralContinuousParams, index: jax.Array) -> ProceduralContinuousParams:
     """``params`` whose layout fields are pool slot ``index``'s (a gather per field; traced ``index`` is fine).
 
     Points are cell centres in float32 (``col + 0.5, row + 0.5``, exact), as ``make_continuous`` writes
-    them; the item rows past ``num_items`` repeat item 0 and are never drawn.
+    them; the item rows past ``num_items`` repeat item 0 and are never drawn. Geodesic params get the slot's
+    ``fields``.
     """
     layout = jax.tree.map(lambda leaf: leaf[index], params.pool)
+    fields = {"fields": params.pool_fields[index]} if isinstance(params, ProceduralGeodesicParams) else {}
     return params.replace(shelves=layout.blocked, start=cell_centre(layout.start), start_cell=layout.start,
                           goal=cell_centre(layout.goal), goal_cell=layout.goal, items=cell_centre(layout.items),
-                          num_items=layout.num_items, obstacle_cells=params.pool_obstacle_cells[index])
+                          num_items=layout.num_items, obstacle_cells=params.pool_obstacle_cells[index], **fields)
 
 
 def with_layout_index(state: ContinuousState, index: jax.Array) -> ProceduralContinuousState:
