@@ -241,6 +241,16 @@ def route_features(obs: jax.Array, params: GeodesicParams, width: int, height: i
     return jnp.stack([way[0] * cos + way[1] * sin, way[1] * cos - way[0] * sin, length])
 
 
+def check_route(shaping: str, observe_route: Any) -> None:
+    """Refuse, by name, an ``observe_route`` that is not a bool or comes without the geodesic fields it reads."""
+    if not isinstance(observe_route, (bool, np.bool_)):
+        raise ValueError(f"observe_route must be True or False, got {observe_route!r}")
+    if observe_route and shaping != "geodesic":
+        raise ValueError("observe_route reads the geodesic shaping's distance fields: pass shaping='geodesic' "
+                         "with it (--shaping geodesic), or observe_route=False (--observe-route False); "
+                         f"got shaping={shaping!r}")
+
+
 def route_space(space, observe_route: bool):
     """An observation space sized with the route (its values bounded by 1), the route's length in ``[0, cap]``."""
     if not observe_route:

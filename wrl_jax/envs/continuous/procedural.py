@@ -230,12 +230,7 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     """
     if shaping not in ("manhattan", "geodesic"):
         raise ValueError(f"shaping must be 'manhattan' or 'geodesic' for {NAME}, got {shaping!r}")
-    if not isinstance(observe_route, (bool, np.bool_)):
-        raise ValueError(f"observe_route must be True or False, got {observe_route!r}")
-    if observe_route and shaping != "geodesic":
-        raise ValueError("observe_route reads the geodesic shaping's distance fields: pass shaping='geodesic' "
-                         "with it (--shaping geodesic), or observe_route=False (--observe-route False); "
-                         f"got shaping={shaping!r}")
+    geodesic.check_route(shaping, observe_route)
     route_resolution = _check_int("route_resolution", route_resolution, 2)
     if route_resolution % 2:
         raise ValueError(f"route_resolution must be even (cell centres must be lattice points), got {route_resolution}")

@@ -168,10 +168,7 @@ def make_continuous(layout: Layout | str | os.PathLike | PaddedLayout, *, max_st
                         ("observe_obstacles", observe_obstacles), ("safety_stop", safety_stop)):
         if not isinstance(value, (bool, np.bool_)):
             raise ValueError(f"{flag} must be True or False, got {value!r}")
-    if observe_route and shaping != "geodesic":
-        raise ValueError("observe_route reads the geodesic shaping's distance fields: pass shaping='geodesic' "
-                         "with it (--shaping geodesic), or observe_route=False (--observe-route False); "
-                         f"got shaping={shaping!r}")
+    geodesic.check_route(shaping, observe_route)
     env = ContinuousWarehouse(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
                               observe_target=bool(observe_target), observe_obstacles=bool(observe_obstacles),
                               safety_margin=stop_margin(safety_stop, safety_margin, bool(settings["randomize"]),
