@@ -12,7 +12,8 @@ goal, computed once per layout (16-connected shortest paths, within 3 % of the a
 read at the robot's centre by bilinear interpolation. Routes keep the robot's radius plus
 ``SPARE`` from shelves and walls, so following the potential does not graze corners; lattice points
 closer than that take the value of their best free neighbour plus the step, so the potential rises
-towards the shelves instead of leaving holes in the interpolation.
+towards the shelves instead of leaving holes in the interpolation. A pool of layouts (the procedural
+variant) gets every slot's fields in one computation (:func:`pool_distance_fields`), on a coarser lattice.
 
 ``observe_route=True`` also shows the learner the way: :func:`route_features` appends the direction
 in which the field falls fastest at the robot (in its own frame) and the length of the way left. A

@@ -22,6 +22,9 @@ Decisions:
   line through the contract's two fixed points (8x8: 300, 12x12: 500); 16x16 gives 700. One value,
   because gymnax consumers truncate at ``params.max_steps_in_episode``; a smaller floor has time to spare.
 - **Randomization** is on by default (``randomize=True``): gains, noise, start jitter and heading.
+- **The way around the shelves** (``shaping="geodesic"``, ``observe_route``; :class:`ProceduralRouteWarehouse`):
+  every slot's distance fields are computed with the pool, on a lattice of :data:`ROUTE_RESOLUTION` points
+  per metre, so the geodesic shaping and the route work on every layout as on a fixed map.
 """
 
 from __future__ import annotations
