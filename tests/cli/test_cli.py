@@ -415,8 +415,8 @@ def test_the_safety_stop_is_a_flag_of_the_continuous_warehouse_and_refused_with_
 
 def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obstacles_where_they_move(tmp_path):
     """SAC's and TD3's commands add geodesic shaping, ``observe_route`` and the safety stop with its held value in
-    view on the study's maps (on the procedural variant PPO's command adds the route, SAC's and TD3's do not: not
-    measured there); PPO keeps the target alone on the study's maps; on
+    view on the study's maps (on the procedural variant every learner's command adds the route, without the stop);
+    PPO keeps the target alone on the study's maps; on
     the moving obstacles' map every learner also sees the obstacles, and PPO trains for the 3M steps measured there
     (SAC for 800k, as TD3 does everywhere); the flags turn it off, and a route without the fields is refused by name
     when the environment is built, before anything compiles."""
@@ -431,12 +431,12 @@ def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obsta
             assert (overrides["observe_obstacles"], overrides["safety_stop"]) == (True, True), (algo, name)
             env = build(command.spec, command.config, command.env).env
             assert env.safety_margin == 0.05 and env.observe_held, (algo, name)
+    for algo in ("sac", "td3", "ppo"):  # every learner sees each generated layout's route, without the stop
         overrides = cli_options.parse(algo, ["--env", "Continuous-Procedural-Warehouse-v0", "--out",
                                              str(tmp_path / algo)]).env.overrides()
-        assert "observe_route" not in overrides and "shaping" not in overrides and overrides["observe_target"]
-    overrides = cli_options.parse("ppo", ["--env", "Continuous-Procedural-Warehouse-v0", "--out",
-                                          str(tmp_path / "pp")]).env.overrides()  # PPO sees each layout's route
-    assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"]) == ("geodesic", True, True)
+        assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"]) == (
+            "geodesic", True, True), algo
+        assert "safety_stop" not in overrides and "observe_obstacles" not in overrides, algo
     for algo in ("sac", "td3", "ppo"):
         overrides = cli_options.parse(algo, ["--env", dynamic, "--out", str(tmp_path / algo)]).env.overrides()
         assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"],

@@ -59,8 +59,8 @@ from wrl_jax.agents.off_policy_config import (
     CONTINUOUS_NAMES,
     DYNAMIC_ENV_DEFAULTS,
     DYNAMIC_NAME,
+    CONTINUOUS_PROCEDURAL_ENV_DEFAULTS,
     PROCEDURAL_NAME,
-    PROCEDURAL_PPO_ENV_DEFAULTS,
 )
 from wrl_jax.agents.ppo_config import (
     FLEET_ENV_DEFAULTS,
@@ -421,7 +421,7 @@ SPEC = AlgoSpec(
     env_defaults={"Fleet-12x12-v0": FLEET_ENV_DEFAULTS, "Fleet-32x32-v0": FLEET_ENV_DEFAULTS,
                   "Procedural-Warehouse-v0": PROCEDURAL_ENV_DEFAULTS,
                   **{name: CONTINUOUS_ENV_DEFAULTS for name in CONTINUOUS_NAMES}, DYNAMIC_NAME: DYNAMIC_ENV_DEFAULTS,
-                  PROCEDURAL_NAME: PROCEDURAL_PPO_ENV_DEFAULTS},
+                  PROCEDURAL_NAME: CONTINUOUS_PROCEDURAL_ENV_DEFAULTS},
     preset_env_defaults=PRESET_ENV_DEFAULTS,
 )
 
