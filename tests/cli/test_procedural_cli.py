@@ -1,8 +1,8 @@
 """``python -m wrl_jax.evaluate --layout`` on layout files the test writes (ASCII and MovingAI): per file and
-overall statistics of every seed's greedy policy, and clear refusals of layouts the run cannot observe, of bad
-files and of runs of other environments.
+overall statistics of every seed's greedy policy (on the grid's and the continuous procedural warehouse), and clear
+refusals of layouts the run cannot observe, of bad files and of runs of other environments.
 
-The run is a checkpoint of an untrained 2-seed PPO written as training writes it (training a procedural run,
+Each run is a checkpoint of an untrained 2-seed PPO written as training writes it (training a procedural run,
 even a tiny one, costs about a minute of compilation on two cores; the evaluation does not care how good the
 policy is). The final generalization report of a training run is tested in tests/envs/procedural/test_procedural.py.
 """
@@ -85,6 +85,56 @@ def test_evaluate_on_layout_files(procedural_run, layout_files, tmp_path, capsys
     assert f"| {paths[1]} | 1 | 1 |" in printed and "| overall |" in printed
 
 
+@pytest.fixture(scope="module")
+def continuous_procedural_run(tmp_path_factory, geodesic_fields_at_the_commands_level):
+    """A run directory holding the checkpoint of an untrained PPO on Continuous-Procedural-Warehouse-v0 (the command's
+    default view: the target and each layout's route), a pool of 8 layouts (the pool program tests/cli/test_cli.py
+    compiles too), seed 3."""
+    spec = get_spec("ppo")
+    config = dataclasses.replace(ppo_config.PPOConfig(), hidden_sizes=(16,), num_envs=8, num_steps=16,
+                                 num_minibatches=2, update_epochs=1, total_timesteps=256, obs_encoding="raw")
+    overrides = {"pool_size": 8, **spec.env_defaults_for("Continuous-Procedural-Warehouse-v0")}
+    algo = build(spec, config, EnvOptions(env="Continuous-Procedural-Warehouse-v0", **overrides))
+    assert algo.env.observe_route and algo.env.observe_target
+    trainer = training.Trainer(algo, [3], training.LoopConfig(progress=False))
+    out = tmp_path_factory.mktemp("continuous-procedural-run")
+    checkpoint.save(out, trainer.host_state(trainer.init()), {
+        "algo": "ppo", "env": "Continuous-Procedural-Warehouse-v0", "env_overrides": overrides, "preset": "default",
+        "config": config_to_dict(config), "seeds": [3], "num_updates": trainer.num_updates,
+        "steps_per_update": trainer.steps_per_update, "updates_done": 0, "env_steps_done": 0, "train_seconds": 0.0,
+    })
+    return out
+
+
+def test_evaluate_a_continuous_procedural_run_on_layout_files(continuous_procedural_run, layout_files, tmp_path,
+                                                               capsys):
+    """The continuous variant's policy on map files: every item of each file (the route computed for its floor), the
+    pursuit controller on the same episodes beside it, ``overall`` over both files. Small files: an untrained policy
+    drives each episode to its time limit. (Files are read and refused as for the grid's runs, above.)"""
+    out = tmp_path / "layouts.json"
+    serpentine = tmp_path / "serpentine.txt"
+    serpentine.write_text("S . 0 . .\n# # # # .\n. . . . .\n. # # # #\n1 . . . G\n")
+    paths = [str(layout_files["small"]), str(serpentine)]
+    argv = ["--run", str(continuous_procedural_run), "--json", str(out), "--layout", paths[0], "--layout", paths[1]]
+    assert cli_evaluate.evaluate_main(argv) == 0
+    printed = capsys.readouterr().out
+    result = json.loads(out.read_text())
+    assert list(result["layouts"]) == paths and result["seeds"] == [3]
+    small, two, overall = result["layouts"][paths[0]], result["layouts"][paths[1]], result["overall"]
+    # The variant randomizes and has no moving obstacles: one round of every item, no bound.
+    assert (small["episodes_per_seed"], two["episodes_per_seed"], overall["episodes_per_seed"]) == (1, 2, 3)
+    assert small["rounds"] == 1 and overall["layouts"] == 2 and "bound_steps" not in small
+    # The controller delivers every item of both floors without a contact: each file's own layout and items.
+    for row in (small, two, overall):
+        assert row["pursuit"]["success_rate"] == 1.0 and row["pursuit"]["collisions_per_episode"] == 0.0
+        assert 0.0 <= row["success_rate"] <= 1.0 and row["collisions_per_episode"] >= 0
+        assert [entry["seed"] for entry in row["per_seed"]] == [3]
+    assert two["pursuit"]["mean_steps"] > small["pursuit"]["mean_steps"]  # the serpentine's second item lies further
+    for key in ("success_rate", "collisions_per_episode"):  # overall: the two files' episodes together
+        assert overall[key] == pytest.approx((small[key] + 2 * two[key]) / 3), key
+    assert f"| {paths[0]} | 1 | 1 |" in printed and "| overall | 2 | 3 |" in printed
+
+
 def test_evaluate_refuses_a_layout_larger_than_the_runs_observation(procedural_run, layout_files, tmp_path, capsys):
     big = tmp_path / "big.map"
     big.write_text("type octile\nheight 17\nwidth 4\nmap\n" + "....\n" * 17)
@@ -107,8 +157,13 @@ def test_evaluate_refuses_layouts_for_a_run_of_another_environment(tmp_path, lay
                     {"algo": "ppo", "env": "Fleet-12x12-v0", "config": {}, "seeds": [0], "updates_done": 0})
     assert cli_evaluate.evaluate_main(["--run", str(run), "--layout", str(layout_files["small"])]) == 2
     err = capsys.readouterr().err
-    assert "needs a run of a single-robot layout environment" in err
+    assert "needs a run of a procedural environment" in err
     assert "Fleet-12x12-v0 (family 'fleet')" in err
+    run = tmp_path / "continuous-run"  # the continuous family's fixed maps: no layout of their own to swap
+    checkpoint.save(run, {"x": np.zeros(1, np.float32)},
+                    {"algo": "sac", "env": "Continuous-Warehouse-8x8-v0", "config": {}, "seeds": [0], "updates_done": 0})
+    assert cli_evaluate.evaluate_main(["--run", str(run), "--layout", str(layout_files["small"])]) == 2
+    assert "Continuous-Warehouse-8x8-v0 (family 'continuous')" in capsys.readouterr().err
 
 
 def test_the_procedural_command_splits_the_cpu_unless_told(tmp_path):

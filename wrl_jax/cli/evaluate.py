@@ -2,9 +2,9 @@
 
 Without ``--layout``, with the run's family hook (what training reports). With
 ``--layout`` (repeatable), on the given map files instead, every item of each:
-only for runs of a single-robot layout environment (the procedural warehouse,
-whose observation is an egocentric window and so can be read on any floor up
-to its padded shape).
+only for runs of a procedural environment, whose policies read any floor up to
+the padded shape they trained on (the grid's egocentric window; the continuous
+variant's lidar, target and route, the route computed for each file's floor).
 """
 
 from __future__ import annotations
@@ -58,14 +58,18 @@ def evaluate_run(run_dir: str | os.PathLike) -> dict[str, Any]:
 
 LAYOUT_FAMILIES = ("procedural",)
 """Families whose policies can be evaluated on arbitrary layout files (``--layout``)."""
+LAYOUT_ENVS = ("Continuous-Procedural-Warehouse-v0",)
+"""Environments of other families whose policies can be (the continuous procedural variant)."""
 
 
 def evaluate_layouts(run_dir: str | os.PathLike, paths: list[str]) -> dict[str, Any]:
     """A run's greedy policy (every seed) on map files: per file and ``overall`` statistics, and a ``table``.
 
     Refuses (``ValueError`` naming the run or the file) a run whose environment
-    is not a single-robot layout environment, and a layout larger than the
-    padded shape of the run's environment; both before any checkpoint is loaded.
+    is not a procedural one, and a layout larger than the padded shape of the
+    run's environment; both before any checkpoint is loaded. On the continuous
+    variant the pursuit controller runs the same episodes and its numbers stand
+    beside the policy's, as in the training report.
     """
     import jax
 
@@ -76,28 +80,34 @@ def evaluate_layouts(run_dir: str | os.PathLike, paths: list[str]) -> dict[str, 
     run_dir = Path(run_dir)
     meta = checkpoint.read_metadata(run_dir)
     family = registry.entry(meta["env"]).family
-    if family not in LAYOUT_FAMILIES:
-        raise ValueError(f"--layout needs a run of a single-robot layout environment (Procedural-Warehouse-v0: "
-                         f"its egocentric window can be read on any floor); {run_dir} holds a {meta['algo']} run "
-                         f"on {meta['env']} (family {family!r})")
+    if family not in LAYOUT_FAMILIES and meta["env"] not in LAYOUT_ENVS:
+        raise ValueError(f"--layout needs a run of a procedural environment (Procedural-Warehouse-v0 or "
+                         f"Continuous-Procedural-Warehouse-v0: their policies read any floor up to their padded "
+                         f"shape); {run_dir} holds a {meta['algo']} run on {meta['env']} (family {family!r})")
+    from wrl_jax.envs.continuous import procedural_evaluation as continuous_evaluation
     from wrl_jax.envs.procedural import evaluation as procedural_evaluation
     from wrl_jax.envs.procedural import layout_sets, reports
 
     spec = get_spec(meta["algo"])
     config = config_from_dict(spec.config_cls, meta["config"])
     algo = build(spec, config, EnvOptions(env=meta["env"], **meta.get("env_overrides", {})))
-    env = algo.env
-    sets = layout_sets.layout_file_sets(paths, env.max_shape, env.generator.max_items)
+    env, grid = algo.env, family in LAYOUT_FAMILIES
+    sets = layout_sets.layout_file_sets(paths, env.max_shape if grid else (env.height, env.width),
+                                        env.generator.max_items)
     trainer = training.Trainer(algo, meta["seeds"], training.LoopConfig(progress=False))
     runners, meta = checkpoint.load(run_dir, trainer.template())
     network_params = jax.vmap(algo.network_params)(runners)
     params = jax.tree.map(lambda x: x[0], runners.env_params)
-    report = procedural_evaluation.evaluate_sets(algo.greedy_action, network_params, env, params, sets,
-                                                 trainer.seeds, overall="overall", memory=algo.policy_memory())
+    if grid:
+        report = procedural_evaluation.evaluate_sets(algo.greedy_action, network_params, env, params, sets,
+                                                     trainer.seeds, overall="overall", memory=algo.policy_memory())
+    else:
+        report = continuous_evaluation.evaluate_layout_sets(algo.greedy_action, network_params, env, params, sets,
+                                                            trainer.seeds, overall="overall")
     overall = report.pop("overall")
     label = (f"{spec.name.upper()} {meta['env']} ({meta.get('preset', '?')}, {len(trainer.seeds)} seeds, "
              f"{meta['updates_done'] * trainer.steps_per_update:,} steps) on {len(sets)} layout file(s)")
-    table = reports.format_sets({**report, "overall": overall})
+    table = (reports.format_sets if grid else continuous_evaluation.format_layout_sets)({**report, "overall": overall})
     return {"run": str(run_dir), "env": meta["env"], "seeds": list(trainer.seeds), "layouts": report,
             "overall": overall, "updates_done": meta["updates_done"], "table": f"{label}\n\n{table}", "items": ""}
 
@@ -113,7 +123,7 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--items", action="store_true", help="print the per-item table too")
     parser.add_argument("--layout", action="append", default=None, metavar="PATH",
                         help="evaluate on this map file instead (ASCII or MovingAI .map; repeat for several); "
-                             "only for procedural-warehouse runs")
+                             "only for runs of Procedural-Warehouse-v0 or Continuous-Procedural-Warehouse-v0")
     parser.add_argument("--xla-opt-level", type=int, default=DEFAULT_XLA_OPT_LEVEL)
     args = parser.parse_args(argv)
     from wrl_jax.training import checkpoint

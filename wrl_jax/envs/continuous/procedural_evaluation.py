@@ -29,6 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from wrl_jax.core.evaluation import number_text as _num
+from wrl_jax.core.evaluation import percent_text as _pct
 from wrl_jax.envs.continuous.evaluation import (EVAL_SEED, PURSUIT_FIELDS, ContinuousEval, contract_env, rounds,
                                                 episode_start, episode_step, run_episodes, summarize)
 from wrl_jax.envs.continuous.procedural_layouts import layout_params, pool_size, with_pool
@@ -133,7 +135,7 @@ def pursuit_plans(params, slots: np.ndarray) -> tuple[Any, np.ndarray]:
 
 
 def evaluate_layout_sets(greedy_action: GreedyFn, network_params: Any, env, params, sets: Sequence[LayoutSet],
-                         seeds: Sequence[int], yardstick: bool = True) -> dict[str, Any]:
+                         seeds: Sequence[int], yardstick: bool = True, overall: str | None = None) -> dict[str, Any]:
     """Every seed's greedy policy (leading axis of ``network_params``) on every real (layout, item) of ``sets``.
 
     The sets are padded to one item capacity and run as one pool, in one compiled program. With
@@ -143,7 +145,8 @@ def evaluate_layout_sets(greedy_action: GreedyFn, network_params: Any, env, para
     ``mean_return``, ``per_seed``) with ``description``, ``layouts``, ``excluded_layouts``,
     ``episodes_per_seed`` and ``rounds``; under ``yardstick`` also ``pursuit`` (the controller on the same
     episodes: ``success_rate``, ``mean_steps``, ``collisions_per_episode``, ``collision_free_rate``) and,
-    without randomization, ``bound_steps`` (the lower bound's mean over the set's episodes).
+    without randomization, ``bound_steps`` (the lower bound's mean over the set's episodes). With ``overall``, the
+    same numbers over every set's episodes together under that name (``description`` "every set together").
 
     Raises:
         ValueError: no sets, or a set padded to another shape than the environment's map.
@@ -183,12 +186,15 @@ def evaluate_layout_sets(greedy_action: GreedyFn, network_params: Any, env, para
         driven = [np.asarray(x) for x in _pursuit_pairs(contract_env(env.plain, env.default_params), eval_params,
                                                         plans, *pairs)]
         randomized = bool(params.randomize)
+    groups = [(layout_set.name, layout_set.description, set_of_slot == index) for index, layout_set in enumerate(sets)]
+    if overall is not None:
+        groups.append((overall, "every set together", np.ones(set_of_slot.size, bool)))
     report = {}
-    for index, layout_set in enumerate(sets):
-        mine = set_of_slot[slots] == index
+    for name, description, members in groups:  # members: the group's slots
+        mine = members[slots]
         if not mine.any():
-            report[layout_set.name] = {"description": layout_set.description, "layouts": 0,
-                                       "excluded_layouts": layout_set.size, "episodes_per_seed": 0}
+            report[name] = {"description": description, "layouts": 0, "excluded_layouts": int(members.sum()),
+                            "episodes_per_seed": 0}
             continue
         result = ContinuousEval(valid=np.ones_like(delivered[:, None, mine]), delivered=delivered[:, None, mine],
                                 steps=steps[:, None, mine], episode_return=ret[:, None, mine],
@@ -196,14 +202,14 @@ def evaluate_layout_sets(greedy_action: GreedyFn, network_params: Any, env, para
         summary = summarize(result, seeds)
         for key in ("num_items", "rounds", "episodes"):
             summary.pop(key)
-        excluded = int((~usable[set_of_slot == index]).sum())
-        report[layout_set.name] = {"description": layout_set.description, "layouts": layout_set.size - excluded,
-                                   "excluded_layouts": excluded, "episodes_per_seed": int(mine.sum()),
-                                   "rounds": num_rounds, **summary}
+        excluded = int((~usable[members]).sum())
+        report[name] = {"description": description, "layouts": int(members.sum()) - excluded,
+                        "excluded_layouts": excluded, "episodes_per_seed": int(mine.sum()), "rounds": num_rounds,
+                        **summary}
         if yardstick:
-            report[layout_set.name].update(_yardstick(driven, mine, None if randomized else bounds[slots, items]))
+            report[name].update(_yardstick(driven, mine, None if randomized else bounds[slots, items]))
         elif unavailable:
-            report[layout_set.name]["pursuit_unavailable"] = unavailable
+            report[name]["pursuit_unavailable"] = unavailable
     return report
 
 
@@ -223,6 +229,37 @@ def _yardstick(driven: list[np.ndarray], mine: np.ndarray, bounds: np.ndarray | 
     if bounds is not None:
         out["bound_steps"] = float(bounds[mine].mean())
     return out
+
+
+def format_layout_sets(report: dict[str, dict[str, Any]]) -> str:
+    """Markdown: one row per set of :func:`evaluate_layout_sets` (every seed), the controller beside it and the
+    lower bound where it holds (without randomization), then each seed's delivery and contacts per set."""
+    if not report:
+        return ""
+    bound = any("bound_steps" in row for row in report.values())
+    lines = ["| set | layouts | episodes/seed | delivered | collisions/episode | collision-free | mean steps | "
+             "pursuit, same episodes (delivered, collisions/episode, steps) |" + (" bound (steps) |" if bound else ""),
+             "|---|---:|---:|---:|---:|---:|---:|---|" + ("---:|" if bound else "")]
+    for name, row in report.items():
+        if not row.get("episodes_per_seed"):
+            lines.append(f"| {name} | 0 | 0 | left out: fewer free cells than moving obstacles | | | | |"
+                         + (" |" if bound else ""))
+            continue
+        pursuit = row.get("pursuit")
+        beside = (f"{_pct(pursuit['success_rate'])}, {pursuit['collisions_per_episode']:.3f}, "
+                  f"{_num(pursuit['mean_steps'])}" if pursuit else row.get("pursuit_unavailable", "n/a"))
+        lines.append(f"| {name} | {row['layouts']} | {row['episodes_per_seed']} | {_pct(row['success_rate'])} | "
+                     f"{row['collisions_per_episode']:.3f} | {_pct(row['collision_free_rate'])} | "
+                     f"{_num(row['mean_steps'])} | {beside} |" + (f" {_num(row.get('bound_steps'))} |" if bound else ""))
+    measured = {name: row for name, row in report.items() if row.get("episodes_per_seed")}
+    if measured:
+        seeds = [entry["seed"] for entry in next(iter(measured.values()))["per_seed"]]
+        lines += ["", "| set (per seed: delivered / collisions per episode) | "
+                  + " | ".join(f"seed {seed}" for seed in seeds) + " |", "|---|" + "---:|" * len(seeds)]
+        for name, row in measured.items():
+            cells = [f"{_pct(entry['success_rate'])} / {entry['collisions_per_episode']:.3f}" for entry in row["per_seed"]]
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def generalization_sets(env, params, heldout_layouts: int | None = None,
