@@ -396,7 +396,7 @@ def test_the_continuous_collision_penalty_observed_obstacles_and_off_policy_sett
         cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--collision-penalty", "-5", "--out", str(tmp_path / "x")])
 
 
-def test_the_safety_stop_is_a_flag_of_the_continuous_warehouse_and_refused_with_randomization(tmp_path):
+def test_the_safety_stop_is_a_flag_of_the_continuous_warehouse_randomized_or_not(tmp_path):
     dynamic = "Continuous-Warehouse-12x12-Dynamic-v0"
     command = cli_options.parse("ppo", ["--env", dynamic, "--safety-stop", "True", "--out", str(tmp_path / "s")])
     assert build(command.spec, command.config, command.env).env.safety_margin == 0.05
@@ -409,13 +409,13 @@ def test_the_safety_stop_is_a_flag_of_the_continuous_warehouse_and_refused_with_
         cli_options.parse("ppo", ["--env", "Warehouse-8x8-v0", "--safety-stop", "True", "--out", str(tmp_path / "w")])
     command = cli_options.parse("ppo", ["--env", dynamic, "--safety-stop", "True", "--randomize", "True",
                                         "--out", str(tmp_path / "r")])
-    with pytest.raises(ValueError, match="turn it off with --safety-stop False"):
-        build(command.spec, command.config, command.env)
+    randomized = build(command.spec, command.config, command.env)
+    assert randomized.env.safety_margin == 0.05 and bool(randomized.env_params.randomize)
 
 
 def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obstacles_where_they_move(tmp_path):
     """SAC's and TD3's commands add geodesic shaping, ``observe_route`` and the safety stop with its held value in
-    view on the study's maps (on the procedural variant every learner's command adds the route, without the stop);
+    view on the study's maps (on the procedural variant every learner's command adds them too, under randomization);
     PPO keeps the target alone on the study's maps; on
     the moving obstacles' map every learner also sees the obstacles, and PPO trains for the 3M steps measured there
     (SAC for 800k, as TD3 does everywhere); the flags turn it off, and a route without the fields is refused by name
@@ -431,12 +431,12 @@ def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obsta
             assert (overrides["observe_obstacles"], overrides["safety_stop"]) == (True, True), (algo, name)
             env = build(command.spec, command.config, command.env).env
             assert env.safety_margin == 0.05 and env.observe_held, (algo, name)
-    for algo in ("sac", "td3", "ppo"):  # every learner sees each generated layout's route, without the stop
+    for algo in ("sac", "td3", "ppo"):  # every learner sees each generated layout's route, over the stop
         overrides = cli_options.parse(algo, ["--env", "Continuous-Procedural-Warehouse-v0", "--out",
                                              str(tmp_path / algo)]).env.overrides()
         assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"]) == (
             "geodesic", True, True), algo
-        assert "safety_stop" not in overrides and "observe_obstacles" not in overrides, algo
+        assert overrides["safety_stop"] and overrides["observe_obstacles"], algo
     for algo in ("sac", "td3", "ppo"):
         overrides = cli_options.parse(algo, ["--env", dynamic, "--out", str(tmp_path / algo)]).env.overrides()
         assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"],
@@ -496,12 +496,8 @@ def test_randomize_flag_builds_the_randomized_warehouse(tmp_path):
     """``--randomize True`` (domain randomization) reaches the continuous warehouse's params; other families refuse it."""
     command = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--randomize", "True",
                                         "--out", str(tmp_path / "a")])
-    with pytest.raises(ValueError, match="turn it off with --safety-stop False"):  # SAC's default stop
-        cli_options.build(command.spec, command.config, command.env)
-    command = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--randomize", "True",
-                                        "--safety-stop", "False", "--out", str(tmp_path / "a")])
-    algo = cli_options.build(command.spec, command.config, command.env)
-    assert bool(algo.env_params.randomize) and algo.env.observe_target
+    algo = cli_options.build(command.spec, command.config, command.env)  # over SAC's default stop, which reads the gains
+    assert bool(algo.env_params.randomize) and algo.env.observe_target and algo.env.safety_margin == 0.05
     plain = cli_options.parse("sac", ["--env", "Continuous-Warehouse-8x8-v0", "--out", str(tmp_path / "b")])
     assert "randomize" not in plain.env.overrides()
     with pytest.raises(ValueError, match="--randomize: continuous options"):

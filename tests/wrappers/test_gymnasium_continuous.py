@@ -21,8 +21,8 @@ from wrl_jax.wrappers.gymnasium_continuous import ContinuousGymEnv
 
 CASES = [("wrl_jax/Continuous-Warehouse-8x8-v0", {"shaping": "geodesic", "observe_target": True, "observe_route": True}),
          ("wrl_jax/Continuous-Warehouse-12x12-Dynamic-v0", {})]
-"""The 8x8 map with the route alone (SAC's and TD3's view without the safety stop, which refuses randomization: the
-target and the route after the contract's values), the dynamic one plain."""
+"""The 8x8 map with the route alone (SAC's and TD3's view without the safety stop and its held value: the target and
+the route after the contract's values), the dynamic one plain."""
 TRAINING_8X8 = {"randomize": True, **CASES[0][1]}
 DYNAMIC_12X12 = {"randomize": True}
 

@@ -59,11 +59,15 @@ def steps(dynamic):
 
 
 def test_nothing_the_stop_lets_through_collides_and_without_a_margin_something_does(dynamic, collisions_through):
+    """Also under domain randomization: the stop checks the step the episode's gains and the step's noise make, and
+    holds the robot with the command they cancel (it stays put instead of moving by the noise)."""
     env, params = dynamic
-    counts = collisions_through(env, params, SAFETY_MARGIN)
-    fits, before, after, stops = (counts[name] for name in ("fits", "before", "after", "stops"))
-    assert fits > 5_000 and before > 500  # the draws do meet things
-    assert after == 0 and stops >= before
+    for randomize in (False, True):
+        counts = collisions_through(env, params.replace(randomize=jnp.bool_(randomize)), SAFETY_MARGIN)
+        fits, before, after, stops = (counts[name] for name in ("fits", "before", "after", "stops"))
+        assert fits > 5_000 and before > 500, randomize  # the draws do meet things
+        assert after == 0 and stops >= before, randomize
+        assert counts["creep"] < 1e-6, randomize  # measured: 0 both ways (the cancellation rounds exactly here)
     # At margin 0 a shelf corner between two rays slips through: the margin is what covers the rays' spacing.
     assert collisions_through(env, params, 0.0)["after"] > 0
 
@@ -72,7 +76,7 @@ def test_the_stop_drops_the_forward_command_only_and_lets_the_robot_back_away(dy
     _, params = dynamic
     state = start(jax.random.key(0))
     wall = state.replace(pos=jnp.array([0.3, 1.5], jnp.float32), theta=jnp.float32(np.pi))  # touching the left wall
-    stop = jax.jit(lambda action: safety_stop(wall, action, 32, SAFETY_MARGIN, params))  # one program, three actions
+    stop = jax.jit(lambda action: safety_stop(wall, action, jnp.zeros(2), 32, SAFETY_MARGIN, params))  # one program, three actions
     action, by_obstacle, by_shelf = stop(jnp.array([0.8, 0.5], jnp.float32))
     assert bool(by_shelf) and not bool(by_obstacle)
     np.testing.assert_array_equal(np.asarray(action), [0.0, 0.5])  # the turn stays
@@ -112,20 +116,20 @@ def test_the_environment_with_the_stop_reports_it_and_otherwise_steps_as_without
 @pytest.mark.parametrize(("settings", "match"), [
     ({"safety_stop": True, "safety_margin": -0.1}, "metres in"), ({"safety_stop": True, "safety_margin": True}, "metres in"),
     ({"safety_stop": True, "safety_margin": "0.05"}, "metres in"), ({"safety_margin": 0.1}, "pass safety_stop=True"),
-    ({"safety_stop": True, "randomize": True}, "--safety-stop False"), ({"safety_stop": 1}, "True or False"),
+    ({"safety_stop": 1}, "True or False"),
     ({"safety_stop": True, "num_rays": 16}, "pass a safety_margin of your own")])
 def test_bad_settings_of_the_stop_are_refused_before_anything_is_built(settings, match):
     with pytest.raises(ValueError, match=match):
         make_continuous(WAREHOUSE_12X12, num_obstacles=4, **settings)
 
 
-def test_the_procedural_variant_takes_the_stop_without_randomization():
+def test_the_procedural_variant_takes_the_stop_randomized_or_not():
     from wrl_jax.envs.continuous.procedural import make_continuous_procedural
 
     env, _ = make_continuous_procedural(pool_size=4, randomize=False, safety_stop=True, safety_margin=0.1)
     assert env.safety_margin == 0.1 and env.plain.safety_margin == 0.1
-    with pytest.raises(ValueError, match="--safety-stop False"):
-        make_continuous_procedural(pool_size=4, safety_stop=True)
+    env, params = make_continuous_procedural(pool_size=4, safety_stop=True)
+    assert env.safety_margin == SAFETY_MARGIN and bool(params.randomize)
 
 
 def test_the_view_counts_the_steps_the_robot_is_held_and_forgets_them_once_it_moves(dynamic, start, steps):

@@ -20,7 +20,8 @@ blocked robot sees what it saw before it pushed.
 
 ``safety_margin=m`` (``make(..., safety_stop=True)``) puts a reflex under the policy
 (:mod:`~wrl_jax.envs.continuous.safety`): a forward command the robot's lidar says would come within
-``robot_radius + m`` of something is dropped before the contract's step (``info["safety_stop"]``). With
+``robot_radius + m`` of something is replaced before the contract's step by one that holds the robot (0; under
+randomization, the one the episode's gain and the step's noise cancel) (``info["safety_stop"]``). With
 ``observe_obstacles`` the flags then say blocked too, and one more value says for how many steps in a row the
 robot has been held: a policy without memory can then tell a standstill that lasts from one that has just
 begun, and back out of it.
@@ -208,11 +209,12 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
         """The contract's transition from this step's draws, behind the safety stop where it is on, and the
         count of steps the robot has been held (``state.held``: a contact or the stop, in a row) where the view
         reads it (0 elsewhere: the other programs stay the ones measured)."""
+        draws = self.step_draws(key, params)
         if self.safety_margin is None:
-            return transition_core(state, action, self.step_draws(key, params), params)
-        action, stop_obstacle, stop_shelf = safety_stop(state, action, self.num_rays, self.safety_margin, params)
-        obs, reached, reward, terminated, truncated, info = transition_core(state, action,
-                                                                            self.step_draws(key, params), params)
+            return transition_core(state, action, draws, params)
+        action, stop_obstacle, stop_shelf = safety_stop(state, action, draws.noise, self.num_rays, self.safety_margin,
+                                                        params)
+        obs, reached, reward, terminated, truncated, info = transition_core(state, action, draws, params)
         info = {**info, "safety_stop": stop_obstacle | stop_shelf, "stop_obstacle": stop_obstacle,
                 "stop_shelf": stop_shelf}
         if self.observe_held:

@@ -220,7 +220,7 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     ``max_items`` 8, ``density``...) and any constant of the contract (``make_continuous``'s, e.g.
     ``dt``, ``collision_penalty``). ``max_steps`` defaults to :func:`default_max_steps` of ``max_shape``.
     ``observe_target`` and ``observe_obstacles`` append the target and the moving obstacles seen from the robot,
-    as on the plain environment; ``safety_stop`` (with ``randomize=False``) turns on the safety stop.
+    as on the plain environment; ``safety_stop`` turns on the safety stop.
     ``shaping="geodesic"`` computes every pool slot's distance fields (``route_resolution`` lattice points per
     metre; about 10 s for 1,024 layouts of 12x12 at 4 on a 2-core CPU) for the geodesic shaping and, under
     ``observe_route``, the route (:class:`ProceduralRouteWarehouse`).

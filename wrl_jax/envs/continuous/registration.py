@@ -99,17 +99,17 @@ def make_continuous(layout: Layout | str | os.PathLike | PaddedLayout, *, max_st
     appends the target seen from the robot to the observation (:func:`~.env.target_features`);
     ``observe_route=True`` (with geodesic shaping, whose fields it reads) appends the way there
     (:func:`~.geodesic.route_features`); ``observe_obstacles=True`` appends the moving obstacles' ranges and the
-    last step's contacts (:func:`~.env.obstacle_features`); ``safety_stop=True`` drops a forward command the lidar says
-    would come within ``robot_radius + safety_margin`` of something (:mod:`~.safety`; the margin 0.05 m unless
-    given). All five are for learners; the registered names are the contract's.
+    last step's contacts (:func:`~.env.obstacle_features`); ``safety_stop=True`` holds the robot where its forward
+    command would come within ``robot_radius + safety_margin`` of what the lidar sees (:mod:`~.safety`; the margin
+    0.05 m unless given; with or without randomization). All five are for learners; the registered names are the
+    contract's.
 
     Raises:
         ValueError: naming the problem: an unknown override or shaping, a non-positive length or speed, a
             radius that does not fit a cell, a setting that is not finite, a negative speed or noise, a
             dropout outside ``[0, 1]``, a ``max_steps`` missing for a layout other than the study's, too few
             cells for the obstacles, a gain range that is not ``0 < low <= high``, ``observe_route`` without
-            geodesic shaping, a ``safety_stop`` with ``randomize``, or a ``safety_margin`` out of
-            ``[0, 1)`` or without ``safety_stop``.
+            geodesic shaping, or a ``safety_margin`` out of ``[0, 1)`` or without ``safety_stop``.
     """
     layout = as_layout(layout)
     unknown = sorted(set(overrides) - set(DEFAULTS))
@@ -171,17 +171,15 @@ def make_continuous(layout: Layout | str | os.PathLike | PaddedLayout, *, max_st
     geodesic.check_route(shaping, observe_route)
     env = ContinuousWarehouse(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
                               observe_target=bool(observe_target), observe_obstacles=bool(observe_obstacles),
-                              safety_margin=stop_margin(safety_stop, safety_margin, bool(settings["randomize"]),
-                                                         num_rays))
+                              safety_margin=stop_margin(safety_stop, safety_margin, num_rays))
     return geodesic.with_fields(env, params, bool(observe_route)) if shaping == "geodesic" else (env, params)
 
 
-def stop_margin(safety_stop: bool, margin: Any, randomize: bool, num_rays: int) -> float | None:
+def stop_margin(safety_stop: bool, margin: Any, num_rays: int) -> float | None:
     """The safety stop's margin (``None``: the stop is off), or a ``ValueError`` naming what is wrong.
 
     The default margin is measured for 32 rays (the gaps between rays shrink with more): with fewer, the
-    margin must be given. Randomization is refused at construction; a ``params.replace(randomize=True)``
-    afterwards is not seen here (the stop would then check the nominal command)."""
+    margin must be given."""
     if margin is not None and (isinstance(margin, bool) or not isinstance(margin, (int, float, np.integer,
                                                                                    np.floating))
                                or not 0 <= float(margin) < 1):
@@ -190,10 +188,6 @@ def stop_margin(safety_stop: bool, margin: Any, randomize: bool, num_rays: int) 
         if margin is not None:
             raise ValueError("safety_margin is the safety stop's: pass safety_stop=True with it (--safety-stop True)")
         return None
-    if randomize:
-        raise ValueError("the safety stop (every learner's default with moving obstacles, SAC's on the static maps) "
-                         "checks the nominal command, which randomized gains and noise would make unsafe: turn it "
-                         "off with --safety-stop False (safety_stop=False) to randomize, or leave randomize off")
     if margin is None and num_rays < 32:
         raise ValueError(f"the safety stop's default margin ({SAFETY_MARGIN} m) covers the gaps between 32 rays or "
                          f"more; with num_rays={num_rays} pass a safety_margin of your own")

@@ -7,12 +7,15 @@ reflex below its policy; here it is part of the environment a learner trains in 
 the policy learns to turn and go around where the reflex holds it, and the contract's collision check
 (step 3) still judges every step that is taken.
 
-What it reads is what the observation's lidar shows before the step, exactly (no noise): the ``L`` rays
+What it reads is what the observation's lidar shows before the step, without its noise: the ``L`` rays
 from the robot's centre, each return a point ``h`` on a shelf, the boundary or a moving obstacle where
-it stood before this step (where the collision check looks). The step ``q`` is the contract's step 2 for
-the nominal command (gains 1, no noise; randomization is refused with the stop). Turning is never
-stopped: it does not move the disc. Between two rays a shelf corner can come closer than either return,
-so ``margin`` must cover the rays' spacing near the robot (``tests`` measure it).
+it stood before this step (where the collision check looks). The step ``q`` is the contract's step 2 for the
+command the contract will apply: times the episode's gains, plus this step's actuation noise (both 1 and 0
+without randomization). Stopping sets the forward command to the one whose gain and noise cancel
+(``-noise_v / (v_max gain_v)``, 0 without randomization), so a held robot stays where it is, to float
+rounding, under randomization too. Turning is never stopped: it does not move the disc. Between two rays a
+shelf corner can come closer than either return, so ``margin`` must cover the rays' spacing near the robot
+(``tests`` measure it).
 """
 
 from __future__ import annotations
@@ -39,13 +42,18 @@ def approached(pos: jax.Array, q: jax.Array, angles: jax.Array, ranges: jax.Arra
     return jnp.any(seen & (gap < reach) & (gap < ranges))
 
 
-def safety_stop(state: ContinuousState, action: jax.Array, num_rays: int, margin: float,
+def safety_stop(state: ContinuousState, action: jax.Array, noise: jax.Array, num_rays: int, margin: float,
                 params: ContinuousParams) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """``(action, stopped_by_obstacle, stopped_by_shelf_or_wall)``: ``action`` with its forward command set to
-    0 where the step would come within ``robot_radius + margin`` of a return of the lidar."""
+    """``(action, stopped_by_obstacle, stopped_by_shelf_or_wall)``: ``action`` with its forward command replaced by
+    the holding one where the step would come within ``robot_radius + margin`` of a return of the lidar.
+
+    ``noise`` ``(2,)``: this step's actuation noise (the step's draws, zeros without randomization). A noise larger
+    than the gained command's reach (``|noise_v| > v_max gain_v``, sixteen standard deviations at the contract's
+    ranges) cannot be cancelled by a command in [-1, 1]: the step is then only reported as stopped."""
     action = jnp.asarray(action, jnp.float32)
     a = jnp.where(jnp.isnan(action), 0.0, jnp.clip(action, -1.0, 1.0))
-    v, w = params.v_max * a[0], params.w_max * a[1]
+    v = (params.v_max * a[0]) * state.gains[0] + noise[0]
+    w = (params.w_max * a[1]) * state.gains[1] + noise[1]
     theta = wrap(state.theta + (w * params.dt))
     q = state.pos + (v * params.dt) * jnp.stack([jnp.cos(theta), jnp.sin(theta)])
     angles = ray_angles(state.theta, num_rays)
@@ -55,4 +63,6 @@ def safety_stop(state: ContinuousState, action: jax.Array, num_rays: int, margin
                                                           params.obstacle_radius), reach, params.lidar_range)
     moving = v != 0
     shelf, obstacle = moving & shelf, moving & obstacle
-    return action.at[0].set(jnp.where(shelf | obstacle, 0.0, action[0])), obstacle, shelf
+    gained = params.v_max * state.gains[0]
+    hold = jnp.where(params.randomize & (gained > 0), -noise[0] / jnp.where(gained > 0, gained, 1.0), 0.0)
+    return action.at[0].set(jnp.where(shelf | obstacle, hold, action[0])), obstacle, shelf
