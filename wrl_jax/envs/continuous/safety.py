@@ -63,6 +63,5 @@ def safety_stop(state: ContinuousState, action: jax.Array, noise: jax.Array, num
                                                           params.obstacle_radius), reach, params.lidar_range)
     moving = v != 0
     shelf, obstacle = moving & shelf, moving & obstacle
-    gained = params.v_max * state.gains[0]
-    hold = jnp.where(params.randomize & (gained > 0), -noise[0] / jnp.where(gained > 0, gained, 1.0), 0.0)
+    hold = jnp.where(params.randomize, -noise[0] / (params.v_max * state.gains[0]), 0.0)  # gains > 0: checked at build
     return action.at[0].set(jnp.where(shelf | obstacle, hold, action[0])), obstacle, shelf
