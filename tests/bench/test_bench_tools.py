@@ -122,6 +122,26 @@ def test_randomization_bench_widens_every_range_around_its_centre():
     assert float(cases["1x"].gain_low) == float(params.gain_low)
 
 
+def test_randomization_bench_reuses_only_the_run_it_would_train(tmp_path):
+    """A finished run in ``--out`` is evaluated again only if learner, map, randomization and seeds are the asked ones."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    import continuous_randomization as bench
+
+    run = tmp_path / "randomized"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({
+        "algo": "sac", "env": "Continuous-Warehouse-12x12-v0", "env_overrides": {"randomize": True},
+        "seeds": [0, 1, 2, 3], "config": {"total_timesteps": 400_000}}))
+    (run / "summary.json").write_text(json.dumps({"wall_seconds": 412.5}))
+    assert bench.train("sac", "Continuous-Warehouse-12x12-v0", run, 0, 4, True, None) == 412.5
+    assert bench.train("sac", "Continuous-Warehouse-12x12-v0", run, 400_000, 4, True, None) == 412.5
+    for other in (("td3", "Continuous-Warehouse-12x12-v0", run, 0, 4, True, None),
+                  ("sac", "Continuous-Warehouse-12x12-v0", run, 0, 4, False, None),
+                  ("sac", "Continuous-Warehouse-12x12-v0", run, 200_000, 4, True, None)):
+        with pytest.raises(SystemExit, match="holds another run"):
+            bench.train(*other)
+
+
 def test_rware_learning_passes_the_tie_order_only_when_asked():
     """The learning table's older rows need ``--tie-order insertion``; without the flag the environment's own order."""
     sys.path.insert(0, str(ROOT / "bench"))
