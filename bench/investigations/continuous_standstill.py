@@ -1,6 +1,7 @@
 """The procedural policy's failed held-out episodes: standstills under the safety stop, and a turn that ends them.
 
     python bench/investigations/continuous_standstill.py --run DIR [--randomize] [--rounds N] [--escape-after 10 20]
+        [--trace]
 
 A saved run of ``Continuous-Procedural-Warehouse-v0`` (over the stop, with the held value in view), every seed's
 greedy policy on the final report's held-out layouts, every item, ``--rounds`` episodes each (fixed keys),
@@ -9,6 +10,7 @@ end in a standstill (the robot's path over its last 200 steps under 0.01 m); the
 escape added to the policy at evaluation time: where the robot has been held ``K`` steps in a row
 (``state.held``), the turn command becomes a full turn. Why: without noise a held robot whose turn command swings
 back and forth repeats the same observations for the rest of the episode (bench/results/continuous/NOTES.md).
+``--trace`` lists the failed episodes (seed, layout, item, pick-up step) and prints the first one every 25 steps.
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ def main() -> None:
     parser.add_argument("--randomize", action="store_true", help="evaluate with the contract's randomization")
     parser.add_argument("--rounds", type=int, default=1, help="episodes per (layout, item)")
     parser.add_argument("--escape-after", type=int, nargs="*", default=[10, 20])
+    parser.add_argument("--trace", action="store_true", help="list the failures and print the first one's steps")
     args = parser.parse_args()
     meta, algo, _, runners = load_run(args.run)
     if not algo.env.observe_held:
@@ -62,23 +65,27 @@ def main() -> None:
     pairs = tuple(jnp.asarray(a, jnp.int32) for a in (slots, items, rounds))
     root = jax.random.PRNGKey(EVAL_SEED)
 
-    def path_at_the_end(seed, slot, item, round_index):  # one episode replayed: the last steps' path length
+    def replay(seed, slot, item, round_index):  # one greedy episode: positions, headings and commands per step
         act = policy(algo, jax.tree.map(lambda x: x[seed], networks), 0)
         layout = layout_params(pool, slot)
         key = jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(root, slot), item), round_index)
         carry = episode_start(act, env.plain, layout, key, item)
 
         def body(carry, _):
+            command = act(carry[1], carry[2])
             carry = episode_step(act, env.plain, layout, carry)
-            return carry, carry[2].pos
-        _, positions = jax.lax.scan(body, carry, None, length=int(params.max_steps))
+            return carry, (carry[2].pos, carry[2].theta, command)
+        return jax.lax.scan(body, carry, None, length=int(params.max_steps))[1]
+
+    def path_at_the_end(*episode):  # the path length over the last steps
+        positions = replay(*episode)[0]
         return jnp.abs(jnp.diff(positions[-STILL_STEPS:], axis=0)).sum()
 
     print(f"{meta['env']}, seeds {meta['seeds']}, {slots.size} episodes per seed, randomize={args.randomize}")
     for escape_after in [0, *args.escape_after]:
         program = jax.jit(jax.vmap(lambda net, *pair: run_pairs(policy(algo, net, escape_after), env, pool, *pair),
                                    in_axes=(0, None, None, None)))
-        delivered, steps, _, collisions, _ = (np.asarray(x) for x in program(networks, *pairs))
+        delivered, steps, _, collisions, pickup = (np.asarray(x) for x in program(networks, *pairs))
         line = (f"escape after {escape_after or 'never'}: delivered per seed {np.round(delivered.mean(1), 4).tolist()}, "
                 f"steps per delivery {steps[delivered].mean():.2f}, contact steps per episode {collisions.mean():.4f}")
         if escape_after == 0 and (~delivered).any():
@@ -86,6 +93,14 @@ def main() -> None:
             paths = np.asarray(jax.jit(jax.vmap(path_at_the_end))(
                 jnp.asarray(seed, jnp.int32), *(pair[episode] for pair in pairs)))
             line += f"; failed {seed.size}, of them standstills {int((paths < 0.01).sum())}"
+            if args.trace:
+                print("failed (seed index, layout, item, pick-up step or -1):",
+                      [(int(k), int(slots[e]), int(items[e]), int(pickup[k, e])) for k, e in zip(seed, episode)])
+                first = (jnp.int32(seed[0]), *(pair[episode[0]] for pair in pairs))
+                positions, headings, commands = (np.asarray(x) for x in jax.jit(replay)(*first))
+                for t in range(0, positions.shape[0], 25):
+                    print(f"  step {t:3d}: position {positions[t].round(3)}, heading {headings[t] % (2 * np.pi):.3f}, "
+                          f"command {commands[t].round(2)}")
         print(line, flush=True)
 
 
