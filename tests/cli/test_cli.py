@@ -437,6 +437,7 @@ def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obsta
         assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"]) == (
             "geodesic", True, True), algo
         assert overrides["safety_stop"] and overrides["observe_obstacles"], algo
+        assert overrides["escape_after"] == 10, algo  # and the stop's escape from standstills
     for algo in ("sac", "td3", "ppo"):
         overrides = cli_options.parse(algo, ["--env", dynamic, "--out", str(tmp_path / algo)]).env.overrides()
         assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"],

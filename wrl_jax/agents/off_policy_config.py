@@ -299,7 +299,7 @@ GUARDED_ENV_DEFAULTS = {**ROUTE_ENV_DEFAULTS, "observe_obstacles": True, "safety
 stop under the policy with how long it has held the robot: every learner's defaults on the moving obstacles' map
 (:data:`DYNAMIC_ENV_DEFAULTS`) and on the procedural variant (:data:`CONTINUOUS_PROCEDURAL_ENV_DEFAULTS`), and SAC's
 and TD3's on the study's static maps (:data:`OFF_POLICY_ENV_DEFAULTS`)."""
-CONTINUOUS_PROCEDURAL_ENV_DEFAULTS = dict(GUARDED_ENV_DEFAULTS)
+CONTINUOUS_PROCEDURAL_ENV_DEFAULTS = {**GUARDED_ENV_DEFAULTS, "escape_after": 10}
 """Every learner's defaults on the procedural variant: the target, the geodesic shaping and the route from every pool
 slot's own fields, and the safety stop (which reads the episode's randomized gains and the step's noise) with its held
 value in view. 4 seeds, of the items of 256 held-out layouts: PPO (2M steps) 99.6 % delivered, one contact step in

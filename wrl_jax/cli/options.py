@@ -74,10 +74,13 @@ class EnvOptions:
     an obstacle, by a shelf or wall), after the target's values and before the route's"""
     safety_stop: bool | None = None
     """continuous environments: drop a forward command the robot's lidar says would bring it within the margin of a
-    shelf, wall or moving obstacle (a reflex under the policy; not with --randomize); with --observe-obstacles the
-    view gains one value, the steps the robot has been held"""
+    shelf, wall or moving obstacle (a reflex under the policy, with or without --randomize); with
+    --observe-obstacles the view gains one value, the steps the robot has been held"""
     safety_margin: float | None = None
     """continuous environments with --safety-stop True: the margin in metres beyond the robot's radius (0.05)"""
+    escape_after: int | None = None
+    """continuous environments with --safety-stop True: a full turn once the stop has held the robot this many steps
+    in a row"""
     collision_penalty: float | None = None
     """continuous environments: added to the reward of a step that touches a shelf, wall or obstacle (the contract's
     -10; the run's evaluation keeps the value, so its returns are not the contract's)"""
@@ -241,6 +244,7 @@ FAMILY_OPTIONS = {
     "observe_obstacles": ("continuous",),
     "safety_stop": ("continuous",),
     "safety_margin": ("continuous",),
+    "escape_after": ("continuous",),
     "randomize": ("continuous",),
     "collision_penalty": ("continuous",),
     "reward_type": ("rware",),

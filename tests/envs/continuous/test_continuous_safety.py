@@ -117,7 +117,9 @@ def test_the_environment_with_the_stop_reports_it_and_otherwise_steps_as_without
     ({"safety_stop": True, "safety_margin": -0.1}, "metres in"), ({"safety_stop": True, "safety_margin": True}, "metres in"),
     ({"safety_stop": True, "safety_margin": "0.05"}, "metres in"), ({"safety_margin": 0.1}, "pass safety_stop=True"),
     ({"safety_stop": 1}, "True or False"),
-    ({"safety_stop": True, "num_rays": 16}, "pass a safety_margin of your own")])
+    ({"safety_stop": True, "num_rays": 16}, "pass a safety_margin of your own"),
+    ({"escape_after": 10}, "pass safety_stop=True"), ({"safety_stop": True, "escape_after": 0}, "positive integer"),
+    ({"safety_stop": True, "escape_after": 2.5}, "positive integer")])
 def test_bad_settings_of_the_stop_are_refused_before_anything_is_built(settings, match):
     with pytest.raises(ValueError, match=match):
         make_continuous(WAREHOUSE_12X12, num_obstacles=4, **settings)
@@ -152,6 +154,36 @@ def test_the_view_counts_the_steps_the_robot_is_held_and_forgets_them_once_it_mo
     assert int(state_g.held) == 0 and float(obs[-1]) == 0.0
     _, plain, *_, info = plain_step(key, state, forward)  # without the stop nothing reads it
     assert bool(info["hit_wall"]) and int(plain.held) == 0
+
+
+def test_the_escape_turns_a_held_robot_fully_until_it_moves_and_never_before(dynamic, start):
+    """Facing the left wall, a policy that pushes on with a turn swinging between +-0.17 (the traced standstill,
+    bench/results/continuous/NOTES.md): held for ever without the escape; with ``escape_after=3`` the turn becomes
+    a full one from the fourth held step, the robot turns away and moves, and nothing is touched."""
+    env, params = dynamic
+    state = start(jax.random.key(3)).replace(pos=np.array([0.32, 1.5], np.float32), theta=np.float32(np.pi))
+    guarded = {k: make_continuous(WAREHOUSE_12X12, num_obstacles=4, observe_obstacles=True, safety_stop=True,
+                                  escape_after=k)[0] for k in (None, 3)}
+    assert guarded[3].escape_after == 3 and "escape_after=3" in repr(guarded[3]) and guarded[None].escape_after is None
+
+    @jax.jit
+    def run(state):
+        def one(states, t):
+            action = jnp.array([1.0, jnp.where(t % 2 == 0, 0.17, -0.17)], jnp.float32)
+            stepped = [guarded[k].transition(jax.random.key(0), s, action, params) for k, s in zip((None, 3), states)]
+            return tuple(out[1] for out in stepped), [(out[1].held, out[1].pos, out[0][5], out[-1]["collision"])
+                                                      for out in stepped]
+        return jax.lax.scan(one, (state, state), jnp.arange(40))[1]
+
+    (held, pos, _, touched), (held_e, pos_e, turn_e, touched_e) = jax.device_get(run(state))
+    assert held.tolist() == list(range(1, 41)) and np.allclose(pos, [0.32, 1.5])  # a standstill without it
+    assert held_e[:3].tolist() == [1, 2, 3]
+    first = int(np.argmax(held_e == 0))  # the first step it moved
+    assert 3 < first < 40 and float(np.abs(pos_e[-1] - [0.32, 1.5]).sum()) > 0.1
+    # The applied turn (the contract's observation, value 5) is a full turn from the fourth held step until it moves.
+    np.testing.assert_array_equal(turn_e[3:first], 1.0)
+    assert abs(float(turn_e[2])) == pytest.approx(0.17)
+    assert not touched.any() and not touched_e.any()
 
 
 @pytest.mark.parametrize("variant", ["learners_default", "procedural"])

@@ -24,7 +24,8 @@ blocked robot sees what it saw before it pushed.
 randomization, the one the episode's gain and the step's noise cancel) (``info["safety_stop"]``). With
 ``observe_obstacles`` the flags then say blocked too, and one more value says for how many steps in a row the
 robot has been held: a policy without memory can then tell a standstill that lasts from one that has just
-begun, and back out of it.
+begun, and back out of it. ``escape_after=K`` (with the stop) turns the robot fully once it has been held ``K``
+steps in a row (:func:`~wrl_jax.envs.continuous.safety.escape`).
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ from wrl_jax.core.environment import Environment
 from wrl_jax.core.gymnax_base import spaces
 from wrl_jax.envs.continuous.dynamics import OBS_SCALARS, reset_core, transition_core
 from wrl_jax.envs.continuous.geometry import PI, norm, ray_angles, ray_discs
-from wrl_jax.envs.continuous.safety import safety_stop
+from wrl_jax.envs.continuous.safety import escape, safety_stop
 from wrl_jax.envs.continuous.types import ContinuousParams, ContinuousState, ResetDraws, StepDraws
 
 TARGET_FEATURES = 5
@@ -102,7 +103,8 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
 
     def __init__(self, params: ContinuousParams, num_rays: int = 32, num_obstacles: int = 0,
                  name: str = "Continuous-Warehouse", observe_target: bool = False,
-                 observe_obstacles: bool = False, safety_margin: float | None = None):
+                 observe_obstacles: bool = False, safety_margin: float | None = None,
+                 escape_after: int | None = None):
         super().__init__(params)
         self.height, self.width = (int(n) for n in params.shelves.shape)
         self.num_rays, self.num_obstacles = int(num_rays), int(num_obstacles)
@@ -112,11 +114,14 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
         self.safety_margin = None if safety_margin is None else float(safety_margin)
         if self.safety_margin is not None:
             self.event_metrics = MappingProxyType({**self.event_metrics, "safety_stop": "safety_stops_sum"})
+        self.escape_after = None if escape_after is None else int(escape_after)
+        if self.escape_after is not None and self.safety_margin is None:
+            raise ValueError("escape_after is the safety stop's: pass safety_stop=True with it (--safety-stop True)")
         self._name = name
 
     def static_config(self) -> tuple:
         return (self.height, self.width, self.num_rays, self.num_obstacles, self.max_items, self.observe_target,
-                self.observe_obstacles, self.safety_margin)
+                self.observe_obstacles, self.safety_margin, self.escape_after)
 
     @property
     def name(self) -> str:
@@ -152,6 +157,7 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
 
     def __repr__(self) -> str:
         safety = "" if self.safety_margin is None else f", safety_margin={self.safety_margin}"
+        safety += "" if self.escape_after is None else f", escape_after={self.escape_after}"
         return (f"ContinuousWarehouse({self._name}, {self.height}x{self.width}, rays={self.num_rays}, "
                 f"obstacles={self.num_obstacles}{safety})")
 
@@ -208,16 +214,17 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
     def contract_step(self, key: jax.Array, state: ContinuousState, action: Any, params: ContinuousParams):
         """The contract's transition from this step's draws, behind the safety stop where it is on, and the
         count of steps the robot has been held (``state.held``: a contact or the stop, in a row) where the view
-        reads it (0 elsewhere: the other programs stay the ones measured)."""
+        or the escape reads it (0 elsewhere: the other programs stay the ones measured)."""
         draws = self.step_draws(key, params)
         if self.safety_margin is None:
             return transition_core(state, action, draws, params)
+        action = escape(state.held, action, self.escape_after)
         action, stop_obstacle, stop_shelf = safety_stop(state, action, draws.noise, self.num_rays, self.safety_margin,
                                                         params)
         obs, reached, reward, terminated, truncated, info = transition_core(state, action, draws, params)
         info = {**info, "safety_stop": stop_obstacle | stop_shelf, "stop_obstacle": stop_obstacle,
                 "stop_shelf": stop_shelf}
-        if self.observe_held:
+        if self.observe_held or self.escape_after is not None:
             held = info["collision"] | info["safety_stop"]
             reached = reached.replace(held=jnp.where(held, state.held + 1, 0).astype(jnp.int32))
         return obs, reached, reward, terminated, truncated, info

@@ -290,10 +290,11 @@ class GeodesicShaping(ContinuousWarehouse):
 
     def __init__(self, params: GeodesicParams, num_rays: int = 32, num_obstacles: int = 0,
                  name: str = "Continuous-Warehouse", observe_target: bool = False, observe_route: bool = False,
-                 observe_obstacles: bool = False, safety_margin: float | None = None):
+                 observe_obstacles: bool = False, safety_margin: float | None = None,
+                 escape_after: int | None = None):
         super().__init__(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
                          observe_target=observe_target, observe_obstacles=observe_obstacles,
-                         safety_margin=safety_margin)
+                         safety_margin=safety_margin, escape_after=escape_after)
         self.observe_route = bool(observe_route)
 
     def static_config(self) -> tuple:
@@ -332,5 +333,6 @@ def with_fields(env: ContinuousWarehouse, params: ContinuousParams,
                                    fields=jnp.asarray(fields))
     shaped = GeodesicShaping(shaped_params, num_rays=env.num_rays, num_obstacles=env.num_obstacles, name=env.name,
                              observe_target=env.observe_target, observe_route=observe_route,
-                             observe_obstacles=env.observe_obstacles, safety_margin=env.safety_margin)
+                             observe_obstacles=env.observe_obstacles, safety_margin=env.safety_margin,
+                             escape_after=env.escape_after)
     return shaped, shaped_params

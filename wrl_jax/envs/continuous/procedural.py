@@ -83,16 +83,17 @@ class ProceduralContinuousWarehouse(ContinuousWarehouse):
 
     def __init__(self, params: ProceduralContinuousParams, generator: GeneratorConfig, pool_seed: int = 0,
                  num_rays: int = 32, num_obstacles: int = 0, name: str = NAME, observe_target: bool = False,
-                 observe_obstacles: bool = False, safety_margin: float | None = None):
+                 observe_obstacles: bool = False, safety_margin: float | None = None,
+                 escape_after: int | None = None):
         super().__init__(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
                          observe_target=observe_target, observe_obstacles=observe_obstacles,
-                         safety_margin=safety_margin)
+                         safety_margin=safety_margin, escape_after=escape_after)
         self.generator = generator
         self.pool_seed = int(pool_seed)
         self.plain = ContinuousWarehouse(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
                                          observe_target=observe_target,
-                                         observe_obstacles=observe_obstacles,
-                                         safety_margin=safety_margin).without_default_params()
+                                         observe_obstacles=observe_obstacles, safety_margin=safety_margin,
+                                         escape_after=escape_after).without_default_params()
 
     def static_config(self) -> tuple:
         return (*super().static_config(), self.generator)
@@ -154,15 +155,16 @@ class ProceduralRouteWarehouse(ProceduralContinuousWarehouse):
 
     def __init__(self, params: ProceduralGeodesicParams, generator: GeneratorConfig, pool_seed: int = 0,
                  num_rays: int = 32, num_obstacles: int = 0, name: str = NAME, observe_target: bool = False,
-                 observe_obstacles: bool = False, safety_margin: float | None = None, observe_route: bool = False):
+                 observe_obstacles: bool = False, safety_margin: float | None = None, observe_route: bool = False,
+                 escape_after: int | None = None):
         super().__init__(params, generator, pool_seed=pool_seed, num_rays=num_rays, num_obstacles=num_obstacles,
                          name=name, observe_target=observe_target, observe_obstacles=observe_obstacles,
-                         safety_margin=safety_margin)
+                         safety_margin=safety_margin, escape_after=escape_after)
         self.observe_route = bool(observe_route)
         self.plain = geodesic.GeodesicShaping(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
                                               observe_target=observe_target, observe_route=observe_route,
-                                              observe_obstacles=observe_obstacles,
-                                              safety_margin=safety_margin).without_default_params()
+                                              observe_obstacles=observe_obstacles, safety_margin=safety_margin,
+                                              escape_after=escape_after).without_default_params()
 
     def static_config(self) -> tuple:
         return (*super().static_config(), self.observe_route)
@@ -211,7 +213,7 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
                                max_steps: int | None = None, randomize: bool = True, name: str = NAME,
                                observe_target: bool = False, observe_obstacles: bool = False,
                                safety_stop: bool = False, safety_margin: float | None = None,
-                               shaping: str = "manhattan", observe_route: bool = False,
+                               escape_after: int | None = None, shaping: str = "manhattan", observe_route: bool = False,
                                route_resolution: int = ROUTE_RESOLUTION,
                                **overrides: Any) -> tuple[ProceduralContinuousWarehouse, ProceduralContinuousParams]:
     """``(env, params)``: ``pool_size`` generated layouts of ``min_shape..max_shape`` from ``seed``.
@@ -220,7 +222,7 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     ``max_items`` 8, ``density``...) and any constant of the contract (``make_continuous``'s, e.g.
     ``dt``, ``collision_penalty``). ``max_steps`` defaults to :func:`default_max_steps` of ``max_shape``.
     ``observe_target`` and ``observe_obstacles`` append the target and the moving obstacles seen from the robot,
-    as on the plain environment; ``safety_stop`` turns on the safety stop.
+    as on the plain environment; ``safety_stop`` turns on the safety stop (``escape_after``: its escape).
     ``shaping="geodesic"`` computes every pool slot's distance fields (``route_resolution`` lattice points per
     metre; about 10 s for 1,024 layouts of 12x12 at 4 on a 2-core CPU) for the geodesic shaping and, under
     ``observe_route``, the route (:class:`ProceduralRouteWarehouse`).
@@ -259,7 +261,7 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     template_env, template = make_continuous(slot_layout(pool.layouts, 0), max_steps=max_steps, num_rays=num_rays,
                                              num_obstacles=0, randomize=randomize, observe_target=observe_target,
                                              observe_obstacles=observe_obstacles, safety_stop=safety_stop,
-                                             safety_margin=safety_margin, **overrides)
+                                             safety_margin=safety_margin, escape_after=escape_after, **overrides)
     eligible = _obstacle_masks(pool.layouts)
     if num_obstacles:
         counts = np.asarray(eligible.sum(axis=(1, 2)))
@@ -271,7 +273,7 @@ def make_continuous_procedural(*, seed: int = 0, pool_size: int = 1024, max_shap
     fields = {field.name: getattr(template, field.name) for field in dataclasses.fields(template)}
     options = dict(pool_seed=seed, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
                    observe_target=observe_target, observe_obstacles=observe_obstacles,
-                   safety_margin=template_env.safety_margin)
+                   safety_margin=template_env.safety_margin, escape_after=template_env.escape_after)
     if shaping == "manhattan":
         params = layout_params(ProceduralContinuousParams(**fields, pool=pool.layouts, pool_obstacle_cells=eligible), 0)
         return ProceduralContinuousWarehouse(params, generator, **options), params

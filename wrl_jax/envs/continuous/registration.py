@@ -89,7 +89,7 @@ def make_continuous(layout: Layout | str | os.PathLike | PaddedLayout, *, max_st
                     num_rays: int = 32, num_obstacles: int = 0, name: str = "Continuous-Warehouse",
                     shaping: str = "manhattan",
                     observe_target: bool = False, observe_route: bool = False, observe_obstacles: bool = False,
-                    safety_stop: bool = False, safety_margin: float | None = None,
+                    safety_stop: bool = False, safety_margin: float | None = None, escape_after: int | None = None,
                     **overrides: Any) -> tuple[ContinuousWarehouse, ContinuousParams]:
     """``(env, params)`` for ``layout``: a :class:`Layout`, an ASCII map of SPEC.md, a map file's path or a
     MovingAI map loaded by ``load_map`` (:func:`as_layout`).
@@ -101,7 +101,8 @@ def make_continuous(layout: Layout | str | os.PathLike | PaddedLayout, *, max_st
     (:func:`~.geodesic.route_features`); ``observe_obstacles=True`` appends the moving obstacles' ranges and the
     last step's contacts (:func:`~.env.obstacle_features`); ``safety_stop=True`` holds the robot where its forward
     command would come within ``robot_radius + safety_margin`` of what the lidar sees (:mod:`~.safety`; the margin
-    0.05 m unless given; with or without randomization). All five are for learners; the registered names are the
+    0.05 m unless given; with or without randomization) and ``escape_after=K`` turns it fully once it has been held
+    ``K`` steps in a row (:func:`~.safety.escape`). All six are for learners; the registered names are the
     contract's.
 
     Raises:
@@ -109,7 +110,8 @@ def make_continuous(layout: Layout | str | os.PathLike | PaddedLayout, *, max_st
             radius that does not fit a cell, a setting that is not finite, a negative speed or noise, a
             dropout outside ``[0, 1]``, a ``max_steps`` missing for a layout other than the study's, too few
             cells for the obstacles, a gain range that is not ``0 < low <= high``, ``observe_route`` without
-            geodesic shaping, or a ``safety_margin`` out of ``[0, 1)`` or without ``safety_stop``.
+            geodesic shaping, a ``safety_margin`` out of ``[0, 1)`` or without ``safety_stop``, or an
+            ``escape_after`` that is not a positive integer or comes without ``safety_stop``.
     """
     layout = as_layout(layout)
     unknown = sorted(set(overrides) - set(DEFAULTS))
@@ -171,7 +173,8 @@ def make_continuous(layout: Layout | str | os.PathLike | PaddedLayout, *, max_st
     geodesic.check_route(shaping, observe_route)
     env = ContinuousWarehouse(params, num_rays=num_rays, num_obstacles=num_obstacles, name=name,
                               observe_target=bool(observe_target), observe_obstacles=bool(observe_obstacles),
-                              safety_margin=stop_margin(safety_stop, safety_margin, num_rays))
+                              safety_margin=stop_margin(safety_stop, safety_margin, num_rays),
+                              escape_after=stop_escape(safety_stop, escape_after))
     return geodesic.with_fields(env, params, bool(observe_route)) if shaping == "geodesic" else (env, params)
 
 
@@ -192,6 +195,17 @@ def stop_margin(safety_stop: bool, margin: Any, num_rays: int) -> float | None:
         raise ValueError(f"the safety stop's default margin ({SAFETY_MARGIN} m) covers the gaps between 32 rays or "
                          f"more; with num_rays={num_rays} pass a safety_margin of your own")
     return SAFETY_MARGIN if margin is None else float(margin)
+
+
+def stop_escape(safety_stop: bool, escape_after: Any) -> int | None:
+    """The safety stop's escape (``None``: off), or a ``ValueError`` naming what is wrong."""
+    if escape_after is None:
+        return None
+    if isinstance(escape_after, bool) or not isinstance(escape_after, (int, np.integer)) or escape_after < 1:
+        raise ValueError(f"escape_after must be a positive integer (held steps in a row), got {escape_after!r}")
+    if not safety_stop:
+        raise ValueError("escape_after is the safety stop's: pass safety_stop=True with it (--safety-stop True)")
+    return int(escape_after)
 
 
 NAMED_MAPS = {"8x8": maps.WAREHOUSE_8X8, "12x12": maps.WAREHOUSE_12X12}

@@ -16,6 +16,11 @@ without randomization). Stopping sets the forward command to the one whose gain 
 rounding, under randomization too. Turning is never stopped: it does not move the disc. Between two rays a
 shelf corner can come closer than either return, so ``margin`` must cover the rays' spacing near the robot
 (``tests`` measure it).
+
+An escape (``escape_after=K``, :func:`escape`): once the robot has been held ``K`` steps in a row, the turn
+command becomes a full turn until it moves again. Why: without noise, a held robot whose policy swings its turn
+command back and forth sees the same observations for the rest of the episode; a full turn shows it a new view
+and a way out (the procedural policy's held-out failures were such standstills; docs/continuous.md).
 """
 
 from __future__ import annotations
@@ -30,6 +35,14 @@ SAFETY_MARGIN = 0.05
 """The default margin, metres beyond the robot's radius, for the 32 rays' spacing near the robot: of 7,212 steps
 that would collide among 100,000 states drawn next to things, 1 gets through (137 at margin 0;
 bench/investigations/continuous_safety_margin.py)."""
+
+
+def escape(held: jax.Array, action: jax.Array, escape_after: int | None) -> jax.Array:
+    """``action`` with a full turn where the robot has been held ``escape_after`` steps in a row (``None``: off)."""
+    if escape_after is None:
+        return action
+    action = jnp.asarray(action, jnp.float32)
+    return action.at[1].set(jnp.where(held >= escape_after, 1.0, action[1]))
 
 
 def approached(pos: jax.Array, q: jax.Array, angles: jax.Array, ranges: jax.Array, reach: jax.Array,
