@@ -11,6 +11,8 @@ escape added to the policy at evaluation time: where the robot has been held ``K
 (``state.held``), the turn command becomes a full turn. Why: without noise a held robot whose turn command swings
 back and forth repeats the same observations for the rest of the episode (bench/results/continuous/NOTES.md).
 ``--trace`` lists the failed episodes (seed, layout, item, pick-up step) and prints the first one every 25 steps.
+A run whose environment has the stop's own escape (``escape_after``, the procedural default since 2026-12-08) has
+it in every line: the script is for runs without it, or to try another ``K`` on top.
 """
 
 from __future__ import annotations

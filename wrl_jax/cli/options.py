@@ -80,7 +80,7 @@ class EnvOptions:
     """continuous environments with --safety-stop True: the margin in metres beyond the robot's radius (0.05)"""
     escape_after: int | None = None
     """continuous environments with --safety-stop True: a full turn once the stop has held the robot this many steps
-    in a row"""
+    in a row (0: no escape; 10 by default on the procedural variant)"""
     collision_penalty: float | None = None
     """continuous environments: added to the reward of a step that touches a shelf, wall or obstacle (the contract's
     -10; the run's evaluation keeps the value, so its returns are not the contract's)"""

@@ -118,7 +118,7 @@ def test_the_environment_with_the_stop_reports_it_and_otherwise_steps_as_without
     ({"safety_stop": True, "safety_margin": "0.05"}, "metres in"), ({"safety_margin": 0.1}, "pass safety_stop=True"),
     ({"safety_stop": 1}, "True or False"),
     ({"safety_stop": True, "num_rays": 16}, "pass a safety_margin of your own"),
-    ({"escape_after": 10}, "pass safety_stop=True"), ({"safety_stop": True, "escape_after": 0}, "positive integer"),
+    ({"escape_after": 10}, "pass safety_stop=True"), ({"safety_stop": True, "escape_after": -1}, "positive integer"),
     ({"safety_stop": True, "escape_after": 2.5}, "positive integer")])
 def test_bad_settings_of_the_stop_are_refused_before_anything_is_built(settings, match):
     with pytest.raises(ValueError, match=match):

@@ -102,7 +102,7 @@ def make_continuous(layout: Layout | str | os.PathLike | PaddedLayout, *, max_st
     last step's contacts (:func:`~.env.obstacle_features`); ``safety_stop=True`` holds the robot where its forward
     command would come within ``robot_radius + safety_margin`` of what the lidar sees (:mod:`~.safety`; the margin
     0.05 m unless given; with or without randomization) and ``escape_after=K`` turns it fully once it has been held
-    ``K`` steps in a row (:func:`~.safety.escape`). All six are for learners; the registered names are the
+    ``K`` steps in a row (:func:`~.safety.escape`; 0 or ``None``: no escape). All six are for learners; the registered names are the
     contract's.
 
     Raises:
@@ -111,7 +111,7 @@ def make_continuous(layout: Layout | str | os.PathLike | PaddedLayout, *, max_st
             dropout outside ``[0, 1]``, a ``max_steps`` missing for a layout other than the study's, too few
             cells for the obstacles, a gain range that is not ``0 < low <= high``, ``observe_route`` without
             geodesic shaping, a ``safety_margin`` out of ``[0, 1)`` or without ``safety_stop``, or an
-            ``escape_after`` that is not a positive integer or comes without ``safety_stop``.
+            ``escape_after`` that is not an integer >= 0 or is positive without ``safety_stop``.
     """
     layout = as_layout(layout)
     unknown = sorted(set(overrides) - set(DEFAULTS))
@@ -198,11 +198,14 @@ def stop_margin(safety_stop: bool, margin: Any, num_rays: int) -> float | None:
 
 
 def stop_escape(safety_stop: bool, escape_after: Any) -> int | None:
-    """The safety stop's escape (``None``: off), or a ``ValueError`` naming what is wrong."""
-    if escape_after is None:
+    """The safety stop's escape (``None``: off; ``0`` too, so that a command line can turn a default off), or a
+    ``ValueError`` naming what is wrong."""
+    if isinstance(escape_after, bool) or not (escape_after is None or isinstance(escape_after, (int, np.integer))
+                                              and escape_after >= 0):
+        raise ValueError(f"escape_after must be a positive integer (held steps in a row) or 0 (off), got "
+                         f"{escape_after!r}")
+    if not escape_after:
         return None
-    if isinstance(escape_after, bool) or not isinstance(escape_after, (int, np.integer)) or escape_after < 1:
-        raise ValueError(f"escape_after must be a positive integer (held steps in a row), got {escape_after!r}")
     if not safety_stop:
         raise ValueError("escape_after is the safety stop's: pass safety_stop=True with it (--safety-stop True)")
     return int(escape_after)
