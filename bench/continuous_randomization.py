@@ -38,7 +38,7 @@ import numpy as np
 from wrl_jax import training
 from wrl_jax.agents import get_spec
 from wrl_jax.agents.base import config_from_dict
-from wrl_jax.cli.options import EnvOptions, build
+from wrl_jax.cli.options import EnvOptions, build, parse
 from wrl_jax.envs.continuous.evaluation import evaluate_episodes
 from wrl_jax.envs.continuous.procedural import NAME as PROCEDURAL_NAME
 from wrl_jax.envs.continuous.procedural_evaluation import HELDOUT_LAYOUTS, evaluate_layout_sets
@@ -72,23 +72,23 @@ def train(algo: str, env_name: str, out: Path, total_timesteps: int, num_seeds: 
     """``python train_<algo>.py`` (the user's command, in a process of its own: the script chooses XLA's host
     devices before JAX starts); returns the run's wall seconds (from its summary).
 
-    A finished run in ``out`` is reused only if it is this one (learner, environment, randomization, steps, seeds).
+    A finished run in ``out`` is reused only if it is this one: learner, environment, seeds, steps (when given) and
+    every environment option the command gives today (randomization, and defaults such as the stop's escape).
     """
-    if (out / "summary.json").exists():
-        meta = json.loads((out / "config.json").read_text())
-        found = (meta["algo"], meta["env"], bool(meta["env_overrides"].get("randomize", False)),
-                 len(meta["seeds"]))
-        wanted = (algo, env_name, randomize, num_seeds)
-        if total_timesteps:
-            found, wanted = (*found, meta["config"]["total_timesteps"]), (*wanted, total_timesteps)
-        if found != wanted:
-            raise SystemExit(f"{out} holds another run ((algo, env, randomize, seeds[, steps]) = {found}, wanted "
-                             f"{wanted}): choose another --out")
-        return float(json.loads((out / "summary.json").read_text())["wall_seconds"])
     argv = ["--env", env_name, "--num-seeds", str(num_seeds), "--randomize", str(randomize), "--out", str(out),
             "--no-progress", "--no-plot", "--overwrite"]
     if total_timesteps:
         argv += ["--total-timesteps", str(total_timesteps)]
+    if (out / "summary.json").exists():
+        meta = json.loads((out / "config.json").read_text())
+        found = (meta["algo"], meta["env"], meta["env_overrides"], len(meta["seeds"]))
+        wanted = (algo, env_name, parse(algo, argv).env.overrides(), num_seeds)
+        if total_timesteps:
+            found, wanted = (*found, meta["config"]["total_timesteps"]), (*wanted, total_timesteps)
+        if found != wanted:
+            raise SystemExit(f"{out} holds another run ((algo, env, env options, seeds[, steps]) = {found}, wanted "
+                             f"{wanted}): choose another --out")
+        return float(json.loads((out / "summary.json").read_text())["wall_seconds"])
     if devices:
         argv += ["--devices", str(devices)]
     command = [sys.executable, str(ROOT / f"train_{algo}.py"), *argv]

@@ -123,21 +123,30 @@ def test_randomization_bench_widens_every_range_around_its_centre():
 
 
 def test_randomization_bench_reuses_only_the_run_it_would_train(tmp_path):
-    """A finished run in ``--out`` is evaluated again only if learner, map, randomization and seeds are the asked ones."""
+    """A finished run in ``--out`` is evaluated again only if learner, map, seeds and every environment option the
+    command gives today are the asked ones (a run from before a default changed is refused)."""
     sys.path.insert(0, str(ROOT / "bench"))
     import continuous_randomization as bench
+    from wrl_jax.cli.options import parse
 
-    run = tmp_path / "randomized"
-    run.mkdir()
-    (run / "config.json").write_text(json.dumps({
-        "algo": "sac", "env": "Continuous-Warehouse-12x12-v0", "env_overrides": {"randomize": True},
-        "seeds": [0, 1, 2, 3], "config": {"total_timesteps": 400_000}}))
-    (run / "summary.json").write_text(json.dumps({"wall_seconds": 412.5}))
+    def saved(name, overrides):
+        run = tmp_path / name
+        run.mkdir()
+        (run / "config.json").write_text(json.dumps({
+            "algo": "sac", "env": "Continuous-Warehouse-12x12-v0", "env_overrides": overrides,
+            "seeds": [0, 1, 2, 3], "config": {"total_timesteps": 400_000}}))
+        (run / "summary.json").write_text(json.dumps({"wall_seconds": 412.5}))
+        return run
+
+    today = parse("sac", ["--env", "Continuous-Warehouse-12x12-v0", "--randomize", "True"]).env.overrides()
+    run = saved("randomized", today)
     assert bench.train("sac", "Continuous-Warehouse-12x12-v0", run, 0, 4, True, None) == 412.5
     assert bench.train("sac", "Continuous-Warehouse-12x12-v0", run, 400_000, 4, True, None) == 412.5
     for other in (("td3", "Continuous-Warehouse-12x12-v0", run, 0, 4, True, None),
                   ("sac", "Continuous-Warehouse-12x12-v0", run, 0, 4, False, None),
-                  ("sac", "Continuous-Warehouse-12x12-v0", run, 200_000, 4, True, None)):
+                  ("sac", "Continuous-Warehouse-12x12-v0", run, 200_000, 4, True, None),
+                  ("sac", "Continuous-Warehouse-12x12-v0", saved("older", {**today, "escape_after": 10}), 0, 4, True,
+                   None)):
         with pytest.raises(SystemExit, match="holds another run"):
             bench.train(*other)
 

@@ -438,6 +438,15 @@ def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obsta
             "geodesic", True, True), algo
         assert overrides["safety_stop"] and overrides["observe_obstacles"], algo
         assert overrides["escape_after"] == 10, algo  # and the stop's escape from standstills
+    # Turning the stop off takes its escape default with it; an escape asked for without the stop is refused by name.
+    off = ["--env", "Continuous-Procedural-Warehouse-v0", "--pool-size", "4", "--safety-stop", "False",
+           "--observe-obstacles", "False", "--out", str(tmp_path / "off")]
+    command = cli_options.parse("ppo", off)
+    assert "escape_after" not in command.env.overrides()
+    assert build(command.spec, command.config, command.env).env.safety_margin is None
+    command = cli_options.parse("ppo", [*off, "--escape-after", "10"])
+    with pytest.raises(ValueError, match="escape_after is the safety stop's"):
+        build(command.spec, command.config, command.env)
     for algo in ("sac", "td3", "ppo"):
         overrides = cli_options.parse(algo, ["--env", dynamic, "--out", str(tmp_path / algo)]).env.overrides()
         assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"],

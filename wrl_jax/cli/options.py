@@ -227,7 +227,10 @@ def parse(algo: str, argv: list[str] | None = None) -> Command:
         f"Presets: {', '.join(sorted(spec.presets))}.",
         config=(tyro.conf.OmitArgPrefixes,),
     )
-    command = Command(spec=spec, env=parsed.env, run=parsed.run, config=parsed.algo)
+    env = parsed.env
+    if env.safety_stop is False and not any(arg.split("=")[0] == "--escape-after" for arg in argv):
+        env = dataclasses.replace(env, escape_after=None)  # the stop's escape default goes with the stop
+    command = Command(spec=spec, env=env, run=parsed.run, config=parsed.algo)
     validate(command)
     return command
 

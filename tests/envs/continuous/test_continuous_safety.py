@@ -165,6 +165,10 @@ def test_the_escape_turns_a_held_robot_fully_until_it_moves_and_never_before(dyn
     guarded = {k: make_continuous(WAREHOUSE_12X12, num_obstacles=4, observe_obstacles=True, safety_stop=True,
                                   escape_after=k)[0] for k in (None, 3)}
     assert guarded[3].escape_after == 3 and "escape_after=3" in repr(guarded[3]) and guarded[None].escape_after is None
+    assert make_continuous(WAREHOUSE_12X12, safety_stop=True, escape_after=np.int64(0))[0].escape_after is None  # 0: off
+    for bad in (0, True, 2.0):  # the class itself takes None or a positive integer
+        with pytest.raises(ValueError, match="positive integer"):
+            type(guarded[3])(params, safety_margin=SAFETY_MARGIN, escape_after=bad)
 
     @jax.jit
     def run(state):
@@ -184,6 +188,10 @@ def test_the_escape_turns_a_held_robot_fully_until_it_moves_and_never_before(dyn
     np.testing.assert_array_equal(turn_e[3:first], 1.0)
     assert abs(float(turn_e[2])) == pytest.approx(0.17)
     assert not touched.any() and not touched_e.any()
+    # A NaN turn that the escape replaces is still flagged, as the contract flags every NaN action.
+    held = state.replace(held=jnp.int32(5))
+    info = jax.jit(lambda s: guarded[3].transition(jax.random.key(0), s, jnp.array([1.0, jnp.nan]), params)[-1])(held)
+    assert bool(info["invalid_action"]) and bool(info["safety_stop"])
 
 
 @pytest.mark.parametrize("variant", ["learners_default", "procedural"])

@@ -114,9 +114,11 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
         self.safety_margin = None if safety_margin is None else float(safety_margin)
         if self.safety_margin is not None:
             self.event_metrics = MappingProxyType({**self.event_metrics, "safety_stop": "safety_stops_sum"})
+        if escape_after is not None and (isinstance(escape_after, bool) or not isinstance(escape_after, (int, np.integer))
+                                         or escape_after < 1 or self.safety_margin is None):
+            raise ValueError(f"escape_after is a positive integer of the safety stop's (or None), got {escape_after!r}"
+                             f" with safety_margin={self.safety_margin!r}")
         self.escape_after = None if escape_after is None else int(escape_after)
-        if self.escape_after is not None and self.safety_margin is None:
-            raise ValueError("escape_after is the safety stop's: pass safety_stop=True with it (--safety-stop True)")
         self._name = name
 
     def static_config(self) -> tuple:
@@ -218,12 +220,13 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
         draws = self.step_draws(key, params)
         if self.safety_margin is None:
             return transition_core(state, action, draws, params)
+        invalid = jnp.any(jnp.isnan(jnp.asarray(action, jnp.float32)))  # the policy's NaN, whatever replaces it
         action = escape(state.held, action, self.escape_after)
         action, stop_obstacle, stop_shelf = safety_stop(state, action, draws.noise, self.num_rays, self.safety_margin,
                                                         params)
         obs, reached, reward, terminated, truncated, info = transition_core(state, action, draws, params)
         info = {**info, "safety_stop": stop_obstacle | stop_shelf, "stop_obstacle": stop_obstacle,
-                "stop_shelf": stop_shelf}
+                "stop_shelf": stop_shelf, "invalid_action": info["invalid_action"] | invalid}
         if self.observe_held or self.escape_after is not None:
             held = info["collision"] | info["safety_stop"]
             reached = reached.replace(held=jnp.where(held, state.held + 1, 0).astype(jnp.int32))

@@ -207,7 +207,8 @@ def stop_escape(safety_stop: bool, escape_after: Any) -> int | None:
     if not escape_after:
         return None
     if not safety_stop:
-        raise ValueError("escape_after is the safety stop's: pass safety_stop=True with it (--safety-stop True)")
+        raise ValueError("escape_after is the safety stop's: pass safety_stop=True with it (--safety-stop True), or "
+                         "escape_after=0 (--escape-after 0)")
     return int(escape_after)
 
 

@@ -18,9 +18,9 @@ shelf corner can come closer than either return, so ``margin`` must cover the ra
 (``tests`` measure it).
 
 An escape (``escape_after=K``, :func:`escape`): once the robot has been held ``K`` steps in a row, the turn
-command becomes a full turn until it moves again. Why: without noise, a held robot whose policy swings its turn
-command back and forth sees the same observations for the rest of the episode; a full turn shows it a new view
-and a way out (the procedural policy's held-out failures were such standstills; docs/continuous.md).
+command becomes a full (left) turn for as long as the stop or a contact holds it. Why: without noise, a held robot
+whose policy swings its turn command back and forth sees the same observations for the rest of the episode; a full
+turn shows it a new view and a way out (the procedural policy's held-out failures were such standstills; docs/continuous.md).
 """
 
 from __future__ import annotations
