@@ -304,3 +304,8 @@ def test_set_checks_environment_options_over_the_learners_defaults(monkeypatch):
     assert env == {"safety_margin": 0.1}
     with pytest.raises(ValueError, match="pass safety_stop=True"):
         sweep_cli.parse_sets(["safety_margin=0.1"], spec.config_cls, dynamic)
+    # Where the defaults add the stop's escape, turning the stop off takes the escape default with it.
+    escaping = {**spec.env_defaults_for(dynamic), "escape_after": 10}
+    _, env = sweep_cli.parse_sets(["safety_stop=False", "observe_obstacles=False"], spec.config_cls, dynamic, escaping)
+    assert "escape_after" not in sweep_cli._env_overrides(escaping, env, {})
+    assert sweep_cli._env_overrides(escaping, {}, {})["escape_after"] == 10

@@ -228,8 +228,8 @@ def parse(algo: str, argv: list[str] | None = None) -> Command:
         config=(tyro.conf.OmitArgPrefixes,),
     )
     env = parsed.env
-    if env.safety_stop is False and not any(arg.split("=")[0] == "--escape-after" for arg in argv):
-        env = dataclasses.replace(env, escape_after=None)  # the stop's escape default goes with the stop
+    if escape_goes(env.safety_stop, any(arg.split("=")[0] == "--escape-after" for arg in argv)):
+        env = dataclasses.replace(env, escape_after=None)
     command = Command(spec=spec, env=env, run=parsed.run, config=parsed.algo)
     validate(command)
     return command
@@ -266,6 +266,12 @@ FAMILY_OPTIONS = {
 
 ID_OPTIONS = {"pool_size": ("Continuous-Procedural-Warehouse-v0",)}
 """Flags that single ids of another family take as well (the continuous warehouse's pool of generated layouts)."""
+
+
+def escape_goes(safety_stop: Any, escape_given: bool) -> bool:
+    """Whether a default ``escape_after`` is dropped: the stop's escape goes with the stop when the user turns the
+    stop off without asking for an escape (which the environment then refuses by name)."""
+    return safety_stop is False and not escape_given
 
 
 def validate(command: Command) -> None:

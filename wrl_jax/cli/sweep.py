@@ -147,7 +147,7 @@ def parse_sets(
         except ValueError as exc:
             raise ValueError(f"--set {name}: {exc}") from None
         (config if name in config_fields else env)[name] = parsed
-    _check_env_options(env, env_name, config_fields, env_defaults or {})
+    _check_env_options(env, env_name, config_fields, _defaults_under(env_defaults or {}, env))
     return config, env
 
 
@@ -183,7 +183,16 @@ FLEET_EXAMPLE = (
 def _env_overrides(defaults: dict[str, Any], sets: dict[str, Any], grid: dict[str, list[Any]]) -> dict[str, Any]:
     """The sweep's common environment options: the algorithm's defaults for the environment (as
     ``train_ppo.py`` applies them), then ``--set``; a default the grid varies is left out."""
-    return {**{k: v for k, v in defaults.items() if k not in grid}, **sets}
+    return {**{k: v for k, v in _defaults_under(defaults, sets).items() if k not in grid}, **sets}
+
+
+def _defaults_under(defaults: dict[str, Any], sets: dict[str, Any]) -> dict[str, Any]:
+    """The learner's environment defaults that still apply under ``--set`` (the stop's escape goes with the stop)."""
+    from wrl_jax.cli.options import escape_goes
+
+    if escape_goes(sets.get("safety_stop"), "escape_after" in sets):
+        return {k: v for k, v in defaults.items() if k != "escape_after"}
+    return defaults
 
 
 def build_parser() -> argparse.ArgumentParser:
