@@ -430,7 +430,7 @@ def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obsta
             # and the safety stop, with how long it has held the robot in view
             assert (overrides["observe_obstacles"], overrides["safety_stop"]) == (True, True), (algo, name)
             env = build(command.spec, command.config, command.env).env
-            assert env.safety_margin == 0.05 and env.observe_held, (algo, name)
+            assert env.safety_margin == 0.05 and env.observe_held and env.escape_after is None, (algo, name)
     for algo in ("sac", "td3", "ppo"):  # every learner sees each generated layout's route, over the stop
         overrides = cli_options.parse(algo, ["--env", "Continuous-Procedural-Warehouse-v0", "--out",
                                              str(tmp_path / algo)]).env.overrides()
@@ -450,7 +450,8 @@ def test_sac_and_td3_see_the_route_on_the_study_maps_and_every_learner_the_obsta
     for algo in ("sac", "td3", "ppo"):
         overrides = cli_options.parse(algo, ["--env", dynamic, "--out", str(tmp_path / algo)]).env.overrides()
         assert (overrides["shaping"], overrides["observe_route"], overrides["observe_target"],
-                overrides["observe_obstacles"], overrides["safety_stop"]) == ("geodesic", True, True, True, True), algo
+                overrides["observe_obstacles"], overrides["safety_stop"], overrides["escape_after"]) == (
+            "geodesic", True, True, True, True, 10), algo
     ppo = cli_options.parse("ppo", ["--env", dynamic, "--out", str(tmp_path / "p")])
     assert ppo.run.preset == "continuous_dynamic" and ppo.config.total_timesteps == 3_000_000
     sac = cli_options.parse("sac", ["--env", dynamic, "--out", str(tmp_path / "sac")])  # twice the static maps'
