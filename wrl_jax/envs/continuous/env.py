@@ -116,8 +116,9 @@ class ContinuousWarehouse(Environment[ContinuousState, ContinuousParams]):
             self.event_metrics = MappingProxyType({**self.event_metrics, "safety_stop": "safety_stops_sum"})
         if escape_after is not None and (isinstance(escape_after, bool) or not isinstance(escape_after, (int, np.integer))
                                          or escape_after < 1 or self.safety_margin is None):
-            raise ValueError(f"escape_after is a positive integer of the safety stop's (or None), got {escape_after!r}"
-                             f" with safety_margin={self.safety_margin!r}")
+            raise ValueError(f"escape_after must be a positive integer (held steps in a row; make() and the commands "
+                             f"read 0 as off) with the safety stop on, got {escape_after!r} with "
+                             f"safety_margin={self.safety_margin!r}")
         self.escape_after = None if escape_after is None else int(escape_after)
         self._name = name
 

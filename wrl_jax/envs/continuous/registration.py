@@ -198,18 +198,15 @@ def stop_margin(safety_stop: bool, margin: Any, num_rays: int) -> float | None:
 
 
 def stop_escape(safety_stop: bool, escape_after: Any) -> int | None:
-    """The safety stop's escape (``None``: off; ``0`` too, so that a command line can turn a default off), or a
-    ``ValueError`` naming what is wrong."""
-    if isinstance(escape_after, bool) or not (escape_after is None or isinstance(escape_after, (int, np.integer))
-                                              and escape_after >= 0):
-        raise ValueError(f"escape_after must be a positive integer (held steps in a row) or 0 (off), got "
-                         f"{escape_after!r}")
-    if not escape_after:
+    """The safety stop's escape: ``None`` for ``None`` and ``0`` (so that a command line can turn a default off), a
+    ``ValueError`` for an escape without the stop; the environment class checks the value itself."""
+    if escape_after is None or (isinstance(escape_after, (int, np.integer)) and not isinstance(escape_after, bool)
+                                and escape_after == 0):
         return None
     if not safety_stop:
         raise ValueError("escape_after is the safety stop's: pass safety_stop=True with it (--safety-stop True), or "
                          "escape_after=0 (--escape-after 0)")
-    return int(escape_after)
+    return escape_after
 
 
 NAMED_MAPS = {"8x8": maps.WAREHOUSE_8X8, "12x12": maps.WAREHOUSE_12X12}
